@@ -1,0 +1,257 @@
+//! Pinhole camera with two-term radial distortion (Zhang 2000).
+//!
+//! `x_d = x (1 + k1 r^2 + k2 r^4)` on normalised coordinates, then
+//! `u = fx x_d + skew y_d + cx`, `v = fy y_d + cy`. The rotation
+//! `camera_from_world` may be improper (det -1, a raw mirror camera); depth may
+//! be negative (a proper mirror camera looks away from the mirror). Only a
+//! point with zero depth cannot be projected.
+
+use nalgebra::{Matrix2, Matrix3, Matrix3x4, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::GeometryError;
+
+/// Smallest |depth| (mm) a point may have and still be projected.
+const MIN_ABS_DEPTH: f64 = 1e-9;
+
+/// Intrinsic parameters, shared by a real camera and its mirror cameras.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Intrinsics {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Focal length along u, pixels.
+    pub fx: f64,
+    /// Focal length along v, pixels.
+    pub fy: f64,
+    /// Skew (gamma), pixels.
+    pub skew: f64,
+    /// Principal point u.
+    pub cx: f64,
+    /// Principal point v.
+    pub cy: f64,
+    /// First radial distortion coefficient.
+    pub k1: f64,
+    /// Second radial distortion coefficient.
+    pub k2: f64,
+}
+
+impl Intrinsics {
+    /// Square pixels, no skew, centred principal point, no distortion.
+    pub fn ideal(width: u32, height: u32, focal: f64) -> Self {
+        Self {
+            width,
+            height,
+            fx: focal,
+            fy: focal,
+            skew: 0.0,
+            cx: f64::from(width) / 2.0,
+            cy: f64::from(height) / 2.0,
+            k1: 0.0,
+            k2: 0.0,
+        }
+    }
+
+    /// The calibration matrix `K`.
+    pub fn k(&self) -> Matrix3<f64> {
+        Matrix3::new(
+            self.fx, self.skew, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0,
+        )
+    }
+
+    /// Radial distortion factor `1 + k1 r^2 + k2 r^4` for `r^2`.
+    fn radial(&self, r2: f64) -> f64 {
+        1.0 + self.k1 * r2 + self.k2 * r2 * r2
+    }
+
+    /// Normalised undistorted coordinates to distorted pixels.
+    pub fn distort_to_pixel(&self, xy: &Vector2<f64>) -> Vector2<f64> {
+        let f = self.radial(xy.norm_squared());
+        let (xd, yd) = (xy.x * f, xy.y * f);
+        Vector2::new(
+            self.fx * xd + self.skew * yd + self.cx,
+            self.fy * yd + self.cy,
+        )
+    }
+
+    /// Distorted pixels to normalised undistorted coordinates (Newton's method
+    /// on the distortion polynomial; converges to ~1e-12 in a few steps).
+    pub fn undistort_pixel(&self, px: &Vector2<f64>) -> Result<Vector2<f64>, GeometryError> {
+        if !(px.x.is_finite() && px.y.is_finite()) {
+            return Err(GeometryError::NonFinite("pixel"));
+        }
+        let yd = (px.y - self.cy) / self.fy;
+        let xd = (px.x - self.cx - self.skew * yd) / self.fx;
+        let target = Vector2::new(xd, yd);
+        let mut xy = target;
+        for _ in 0..50 {
+            let r2 = xy.norm_squared();
+            let f = self.radial(r2);
+            let residual = xy * f - target;
+            if residual.norm() < 1e-14 {
+                return Ok(xy);
+            }
+            // d(x f)/dx = f I + x (df/dr2 * 2 x)^T
+            let dfdr2 = self.k1 + 2.0 * self.k2 * r2;
+            let jac = Matrix2::identity() * f + xy * xy.transpose() * (2.0 * dfdr2);
+            let step = jac
+                .try_inverse()
+                .ok_or(GeometryError::UndistortDiverged { u: px.x, v: px.y })?
+                * residual;
+            xy -= step;
+            if !(xy.x.is_finite() && xy.y.is_finite()) {
+                break;
+            }
+        }
+        let residual = xy * self.radial(xy.norm_squared()) - target;
+        if residual.norm() < 1e-10 {
+            Ok(xy)
+        } else {
+            Err(GeometryError::UndistortDiverged { u: px.x, v: px.y })
+        }
+    }
+
+    /// Whether a pixel lies inside the image with `margin` pixels to spare.
+    pub fn contains(&self, px: &Vector2<f64>, margin: f64) -> bool {
+        px.x >= margin
+            && px.y >= margin
+            && px.x <= f64::from(self.width) - margin
+            && px.y <= f64::from(self.height) - margin
+    }
+}
+
+/// A calibrated camera `P = K [R | -R C]` with lens distortion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Intrinsic parameters.
+    pub intrinsics: Intrinsics,
+    /// `R`: rotation from world to camera coordinates (det may be -1 for a raw mirror camera).
+    pub camera_from_world: Matrix3<f64>,
+    /// `C`: camera centre in world coordinates.
+    pub center: Vector3<f64>,
+}
+
+impl Camera {
+    /// A camera from its parts.
+    pub fn new(
+        intrinsics: Intrinsics,
+        camera_from_world: Matrix3<f64>,
+        center: Vector3<f64>,
+    ) -> Self {
+        Self {
+            intrinsics,
+            camera_from_world,
+            center,
+        }
+    }
+
+    /// World point to camera coordinates `R (X - C)`.
+    pub fn to_camera(&self, world: &Vector3<f64>) -> Vector3<f64> {
+        self.camera_from_world * (world - self.center)
+    }
+
+    /// Normalised (undistorted) image coordinates of a world point.
+    pub fn normalized(&self, world: &Vector3<f64>) -> Result<Vector2<f64>, GeometryError> {
+        let pc = self.to_camera(world);
+        if !(pc.z.abs() > MIN_ABS_DEPTH) {
+            return Err(GeometryError::ZeroDepth);
+        }
+        Ok(Vector2::new(pc.x / pc.z, pc.y / pc.z))
+    }
+
+    /// Distorted pixel coordinates of a world point.
+    pub fn project(&self, world: &Vector3<f64>) -> Result<Vector2<f64>, GeometryError> {
+        Ok(self.intrinsics.distort_to_pixel(&self.normalized(world)?))
+    }
+
+    /// Depth of a world point along the optical axis (negative behind the camera).
+    pub fn depth(&self, world: &Vector3<f64>) -> f64 {
+        self.to_camera(world).z
+    }
+
+    /// The normalised projection matrix `[R | -R C]` (no `K`, no distortion).
+    pub fn normalized_projection(&self) -> Matrix3x4<f64> {
+        let mut p = Matrix3x4::zeros();
+        p.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&self.camera_from_world);
+        p.set_column(3, &(-self.camera_from_world * self.center));
+        p
+    }
+
+    /// The full linear projection matrix `K [R | -R C]` (distortion not included).
+    pub fn projection_matrix(&self) -> Matrix3x4<f64> {
+        self.intrinsics.k() * self.normalized_projection()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn nico_like() -> Intrinsics {
+        Intrinsics {
+            width: 640,
+            height: 480,
+            fx: 552.0,
+            fy: 548.0,
+            skew: 0.4,
+            cx: 318.0,
+            cy: 243.0,
+            k1: -0.22,
+            k2: 0.06,
+        }
+    }
+
+    fn pixel_in_image() -> impl Strategy<Value = Vector2<f64>> {
+        (0.0..640.0f64, 0.0..480.0f64).prop_map(|(u, v)| Vector2::new(u, v))
+    }
+
+    proptest! {
+        #[test]
+        fn undistort_then_distort_round_trips(px in pixel_in_image()) {
+            let k = nico_like();
+            let xy = k.undistort_pixel(&px).unwrap();
+            let back = k.distort_to_pixel(&xy);
+            prop_assert!((back - px).norm() < 1e-6, "round trip error {}", (back - px).norm());
+        }
+
+        #[test]
+        fn project_then_undistort_recovers_the_ray(
+            x in -300.0..300.0f64, y in -200.0..200.0f64, z in 300.0..2000.0f64
+        ) {
+            let cam = Camera::new(nico_like(), Matrix3::identity(), Vector3::zeros());
+            let p = Vector3::new(x, y, z);
+            let px = cam.project(&p).unwrap();
+            prop_assume!(cam.intrinsics.contains(&px, 0.0));
+            let xy = cam.intrinsics.undistort_pixel(&px).unwrap();
+            prop_assert!((xy - Vector2::new(x / z, y / z)).norm() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn ideal_camera_projects_like_k_times_point() {
+        let cam = Camera::new(
+            Intrinsics::ideal(640, 480, 500.0),
+            Matrix3::identity(),
+            Vector3::zeros(),
+        );
+        let px = cam.project(&Vector3::new(10.0, -20.0, 100.0)).unwrap();
+        assert!((px - Vector2::new(320.0 + 50.0, 240.0 - 100.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn zero_depth_is_an_error_not_a_nan() {
+        let cam = Camera::new(nico_like(), Matrix3::identity(), Vector3::zeros());
+        assert_eq!(
+            cam.project(&Vector3::new(1.0, 2.0, 0.0)),
+            Err(GeometryError::ZeroDepth)
+        );
+        assert!(
+            cam.intrinsics
+                .undistort_pixel(&Vector2::new(f64::NAN, 1.0))
+                .is_err()
+        );
+    }
+}

@@ -1,0 +1,21 @@
+//! The robot's calibrated stereo head and (optionally) its arm model.
+
+use crate::{Arm, Camera};
+
+/// A calibrated stereo rig: left and right camera, and the arm's DH model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rig {
+    /// Camera names, left then right.
+    pub names: [String; 2],
+    /// Left and right cameras.
+    pub cameras: [Camera; 2],
+    /// The arm's kinematic model, if the rig describes one.
+    pub arm: Option<Arm>,
+}
+
+impl Rig {
+    /// Both cameras as references, the shape the triangulation takes.
+    pub fn camera_refs(&self) -> [&Camera; 2] {
+        [&self.cameras[0], &self.cameras[1]]
+    }
+}
