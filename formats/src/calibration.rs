@@ -1,0 +1,230 @@
+//! The calibration file (JSON). `cameras` are the mirror-perspective cameras
+//! (`P = K [R | -R C]` with the real cameras' intrinsics); `plane` is absent
+//! for a method that has none; `joint_offsets` are added to the joint angles
+//! (`theta = q + theta_offset + joint_offset`). Readers ignore unknown keys.
+//!
+//! ```json
+//! {
+//!   "method": "joint+kinematics",
+//!   "plane": { "normal": [0.0, 0.0, -1.0], "distance": 480.0 },
+//!   "cameras": [
+//!     { "name": "left",  "camera_from_world": [1, 0, 0, 0, 1, 0, 0, 0, 1], "center": [-30, 0, 960] },
+//!     { "name": "right", "camera_from_world": [1, 0, 0, 0, 1, 0, 0, 0, 1], "center": [30, 0, 960] }
+//!   ],
+//!   "joint_offsets": [0.0, 0.0, 0.0, 0.0],
+//!   "train_rms_px": 0.6,
+//!   "samples": 20
+//! }
+//! ```
+
+use std::path::Path;
+
+use geometry::{Camera, Plane, Rig};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::{
+    FormatError, check_finite, check_rotation, mat3, mat3_row_major, read_text, write_text,
+};
+
+/// A mirror plane `n . X + d = 0`, normal towards the robot.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlaneEntry {
+    /// Unit normal.
+    pub normal: [f64; 3],
+    /// `d`.
+    pub distance: f64,
+}
+
+/// One mirror-perspective camera's pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraPose {
+    /// Name of the real camera it mirrors.
+    pub name: String,
+    /// Row-major `R` (camera from world).
+    pub camera_from_world: [f64; 9],
+    /// Centre in world, mm.
+    pub center: [f64; 3],
+}
+
+/// A calibration as stored on disk.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationFile {
+    /// `paper`, `joint` or `joint+kinematics`.
+    pub method: String,
+    /// The mirror plane, for methods that estimate one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane: Option<PlaneEntry>,
+    /// Mirror-perspective cameras, left then right.
+    pub cameras: Vec<CameraPose>,
+    /// Estimated encoder offsets, rad.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_offsets: Option<Vec<f64>>,
+    /// RMS reprojection error on the training samples, px.
+    pub train_rms_px: f64,
+    /// Number of training samples used.
+    pub samples: usize,
+}
+
+impl CalibrationFile {
+    /// Builds the file form from geometry types.
+    pub fn new(
+        method: &str,
+        plane: Option<&Plane>,
+        names: &[String; 2],
+        cameras: &[Camera; 2],
+        joint_offsets: Option<&[f64]>,
+        train_rms_px: f64,
+        samples: usize,
+    ) -> Self {
+        Self {
+            method: method.to_string(),
+            plane: plane.map(|p| PlaneEntry {
+                normal: p.normal.into_inner().into(),
+                distance: p.distance,
+            }),
+            cameras: cameras
+                .iter()
+                .zip(names)
+                .map(|(c, n)| CameraPose {
+                    name: n.clone(),
+                    camera_from_world: mat3_row_major(&c.camera_from_world),
+                    center: c.center.into(),
+                })
+                .collect(),
+            joint_offsets: joint_offsets.map(<[f64]>::to_vec),
+            train_rms_px,
+            samples,
+        }
+    }
+
+    /// The mirror cameras, with the intrinsics of the rig's real cameras.
+    pub fn mirror_cameras(&self, rig: &Rig) -> [Camera; 2] {
+        let pose = |k: usize| {
+            Camera::new(
+                rig.cameras[k].intrinsics,
+                mat3(&self.cameras[k].camera_from_world),
+                Vector3::from(self.cameras[k].center),
+            )
+        };
+        [pose(0), pose(1)]
+    }
+
+    /// The mirror plane, if any.
+    pub fn plane(&self) -> Option<Plane> {
+        self.plane
+            .as_ref()
+            .and_then(|p| Plane::new(Vector3::from(p.normal), p.distance).ok())
+    }
+
+    /// Joint offsets, or none when absent or all zero.
+    pub fn nonzero_joint_offsets(&self) -> Option<&[f64]> {
+        self.joint_offsets
+            .as_deref()
+            .filter(|o| o.iter().any(|v| *v != 0.0))
+    }
+
+    /// Renders as pretty JSON.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("a calibration always serialises") + "\n"
+    }
+}
+
+/// Reads and validates a calibration file.
+pub fn read(path: impl AsRef<Path>) -> Result<CalibrationFile, FormatError> {
+    let path = path.as_ref();
+    parse(path, &read_text(path)?)
+}
+
+/// Parses calibration JSON; `path` is only used in error messages.
+pub fn parse(path: &Path, text: &str) -> Result<CalibrationFile, FormatError> {
+    let cal: CalibrationFile = serde_json::from_str(text).map_err(|e| {
+        FormatError::new(
+            path,
+            Some(format!("line {}", e.line())),
+            strip_position(&e.to_string()),
+        )
+    })?;
+    if cal.cameras.len() != 2 {
+        return Err(FormatError::at_key(
+            path,
+            "cameras",
+            format!("expected 2 cameras, found {}", cal.cameras.len()),
+        ));
+    }
+    for (k, c) in cal.cameras.iter().enumerate() {
+        check_rotation(
+            path,
+            &format!("cameras[{k}].camera_from_world"),
+            &mat3(&c.camera_from_world),
+            true,
+        )?;
+        check_finite(path, &format!("cameras[{k}].center"), &c.center)?;
+    }
+    if let Some(p) = &cal.plane {
+        check_finite(
+            path,
+            "plane",
+            &[p.normal[0], p.normal[1], p.normal[2], p.distance],
+        )?;
+        if (Vector3::from(p.normal).norm() - 1.0).abs() > 1e-6 {
+            return Err(FormatError::at_key(
+                path,
+                "plane.normal",
+                "is not a unit vector",
+            ));
+        }
+    }
+    if let Some(o) = &cal.joint_offsets {
+        check_finite(path, "joint_offsets", o)?;
+    }
+    Ok(cal)
+}
+
+/// serde_json appends " at line L column C"; the location is reported separately.
+fn strip_position(message: &str) -> String {
+    match message.rfind(" at line ") {
+        Some(i) => message[..i].to_string(),
+        None => message.to_string(),
+    }
+}
+
+/// Writes a calibration file.
+pub fn write(path: impl AsRef<Path>, cal: &CalibrationFile) -> Result<(), FormatError> {
+    write_text(path.as_ref(), &cal.to_json())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geometry::sim::nico_scene;
+
+    #[test]
+    fn round_trips_and_reports_bad_keys() {
+        let scene = nico_scene();
+        let plane = scene.mirrors[0].plane;
+        let cams = scene.rig.cameras.map(|c| plane.mirror_camera(&c));
+        let cal = CalibrationFile::new(
+            "joint",
+            Some(&plane),
+            &scene.rig.names,
+            &cams,
+            Some(&[0.0; 4]),
+            0.5,
+            10,
+        );
+        let p = Path::new("c.json");
+        let back = parse(p, &cal.to_json()).unwrap();
+        assert_eq!(back, cal);
+        assert_eq!(back.mirror_cameras(&scene.rig), cams);
+        let e = parse(p, "{\"method\": \"joint\"}").unwrap_err().to_string();
+        assert_eq!(e, "c.json: line 1: missing field `cameras`");
+        let mut bad = cal.clone();
+        bad.cameras[1].camera_from_world[0] = 3.0;
+        let e = parse(p, &bad.to_json()).unwrap_err().to_string();
+        assert!(
+            e.starts_with("c.json: key cameras[1].camera_from_world: is not a rotation"),
+            "{e}"
+        );
+    }
+}
