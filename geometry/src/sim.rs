@@ -231,9 +231,9 @@ pub fn nico_noise() -> NoiseModel {
 }
 
 /// Pixel noise of the `nico` preset.
-pub const NICO_PIXEL_SIGMA: f64 = 1.0;
+pub const NICO_PIXEL_SIGMA: f64 = 2.2;
 /// Encoder offset scale (rad) of the `nico` preset.
-pub const NICO_OFFSET_SCALE: f64 = 0.02;
+pub const NICO_OFFSET_SCALE: f64 = 0.008;
 
 /// The preset's shape of encoder offsets, scaled: used to fit the preset.
 pub fn nico_noise_scaled(pixel_sigma: f64, offset_scale: f64) -> NoiseModel {

@@ -1,1 +1,5 @@
-fn main() {}
+//! `mirror_proc`: see `mirror_proc --help`.
+
+fn main() -> std::process::ExitCode {
+    mirror_proc::cli::main()
+}

@@ -1,0 +1,303 @@
+//! Estimating the mirror-perspective cameras from mirror-view samples.
+//!
+//! Three methods ([`Method`]):
+//! - `paper`: Hart & Scassellati (2012), per camera: mirror plane from the
+//!   `J`/`Ĵ` pairs (Eqs 6-9), initial camera (Eqs 10-12), 6-DOF
+//!   Levenberg-Marquardt on reprojection error (Eq 13);
+//! - `joint`: one mirror plane (3 DOF) shared by both cameras, both mirror
+//!   cameras derived from it and the known rig, refined on both cameras'
+//!   reprojection errors;
+//! - `joint+kinematics`: the joint plane plus per-joint encoder offsets.
+
+mod joint;
+mod paper;
+
+pub use paper::initial_estimate as paper_initial_estimate;
+
+use geometry::{Camera, GeometryError, Plane, Rig, Sample, View, triangulate::triangulate};
+use nalgebra::{Vector2, Vector3};
+use std::fmt;
+use std::str::FromStr;
+
+/// Fewest mirror samples any method accepts.
+pub const MIN_SAMPLES: usize = 3;
+/// Smallest RMS spread (mm) of the end-effector positions around their mean:
+/// below it the poses are "all nearly the same" and the mirror camera's
+/// pose is not determined.
+pub const MIN_SPREAD_MM: f64 = 10.0;
+/// Closest a camera may be to the estimated mirror plane, mm.
+pub const MIN_CAMERA_PLANE_DISTANCE_MM: f64 = 1.0;
+
+/// A calibration method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// The paper's per-camera method.
+    Paper,
+    /// A shared mirror plane.
+    Joint,
+    /// A shared mirror plane and per-joint encoder offsets.
+    JointKinematics,
+}
+
+impl Method {
+    /// All methods, in the order reports list them.
+    pub const ALL: [Method; 3] = [Method::Paper, Method::Joint, Method::JointKinematics];
+
+    /// The method's name in files and on the command line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Method::Paper => "paper",
+            Method::Joint => "joint",
+            Method::JointKinematics => "joint+kinematics",
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Method {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.as_str() == s)
+            .ok_or_else(|| {
+                format!("unknown method `{s}` (expected paper, joint or joint+kinematics)")
+            })
+    }
+}
+
+/// Why a calibration could not be computed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibrateError {
+    /// Not enough mirror samples.
+    #[error("{found} usable mirror samples; at least {MIN_SAMPLES} are needed")]
+    TooFewSamples {
+        /// Mirror samples found.
+        found: usize,
+    },
+    /// The poses do not spread enough to determine the mirror camera.
+    #[error(
+        "the arm poses are nearly all the same (end-effector spread {spread_mm:.2} mm, need {MIN_SPREAD_MM} mm)"
+    )]
+    PosesAlike {
+        /// RMS spread of the end-effector positions, mm.
+        spread_mm: f64,
+    },
+    /// A sample lacks what the method needs.
+    #[error("pose {pose}: {reason}")]
+    BadSample {
+        /// Pose id.
+        pose: u64,
+        /// What is missing or wrong.
+        reason: String,
+    },
+    /// The estimated mirror passes through (or too close to) a camera.
+    #[error("the estimated mirror plane passes within {distance_mm:.3} mm of the {camera} camera")]
+    PlaneThroughCamera {
+        /// Camera name.
+        camera: String,
+        /// Its distance to the plane.
+        distance_mm: f64,
+    },
+    /// The geometry does not determine a solution.
+    #[error("{0}")]
+    Geometry(#[from] GeometryError),
+}
+
+/// A computed calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration {
+    /// The method that produced it.
+    pub method: Method,
+    /// The mirror plane (normal towards the robot), for `joint` methods.
+    pub plane: Option<Plane>,
+    /// The mirror-perspective cameras (proper rotations), left then right.
+    pub mirror_cameras: [Camera; 2],
+    /// Estimated encoder offsets (rad), for `joint+kinematics`.
+    pub joint_offsets: Option<Vec<f64>>,
+    /// The estimate the refinement started from (mirror cameras).
+    pub initial_cameras: [Camera; 2],
+    /// RMS reprojection error over both cameras on the training samples, px.
+    pub train_rms_px: f64,
+    /// Mirror samples used.
+    pub samples: usize,
+}
+
+impl Calibration {
+    /// The file form of this calibration.
+    pub fn to_file(&self, rig: &Rig) -> formats::calibration::CalibrationFile {
+        formats::calibration::CalibrationFile::new(
+            self.method.as_str(),
+            self.plane.as_ref(),
+            &rig.names,
+            &self.mirror_cameras,
+            self.joint_offsets.as_deref(),
+            self.train_rms_px,
+            self.samples,
+        )
+    }
+}
+
+/// One mirror sample prepared for a solver.
+#[derive(Debug, Clone)]
+pub(crate) struct Observation {
+    /// The end-effector model's prediction `J` (no offsets).
+    pub model_point: Vector3<f64>,
+    /// Joint readings, when known.
+    pub joints: Option<Vec<f64>>,
+    /// `Ĵ`: the reflection triangulated through the real cameras.
+    pub reflected_point: Vector3<f64>,
+    /// Detections, left then right.
+    pub pixels: [Vector2<f64>; 2],
+}
+
+/// The end-effector model's position for a sample: `FK(q + offsets)` when
+/// offsets are given, else the sample's `jx,jy,jz`, else `FK(q)`.
+pub fn model_point(
+    rig: &Rig,
+    sample: &Sample,
+    offsets: Option<&[f64]>,
+) -> Result<Vector3<f64>, CalibrateError> {
+    let bad = |reason: &str| CalibrateError::BadSample {
+        pose: sample.pose,
+        reason: reason.to_string(),
+    };
+    let forward = |offsets: &[f64]| -> Result<Vector3<f64>, CalibrateError> {
+        let arm = rig
+            .arm
+            .as_ref()
+            .ok_or_else(|| bad("needs the rig's [arm] to compute J from joint angles"))?;
+        let q = sample
+            .joints
+            .as_ref()
+            .ok_or_else(|| bad("has no joint angles (q0..)"))?;
+        arm.end_effector(q, offsets)
+            .map_err(|e| bad(&e.to_string()))
+    };
+    match (offsets, sample.model_point) {
+        (Some(o), _) => forward(o),
+        (None, Some(j)) => Ok(j),
+        (None, None) => forward(&[]),
+    }
+}
+
+/// Checks and prepares the mirror samples (direct ones are ignored).
+pub(crate) fn prepare(
+    rig: &Rig,
+    samples: &[Sample],
+    need_joints: bool,
+) -> Result<Vec<Observation>, CalibrateError> {
+    let mut out = Vec::new();
+    for s in samples.iter().filter(|s| s.view == View::Mirror) {
+        let bad = |reason: String| CalibrateError::BadSample {
+            pose: s.pose,
+            reason,
+        };
+        if !s.pixels.iter().all(|p| p.iter().all(|v| v.is_finite())) {
+            return Err(bad("non-finite pixel coordinates".into()));
+        }
+        if need_joints {
+            if rig.arm.is_none() {
+                return Err(bad("joint offsets need the rig's [arm]".into()));
+            }
+            if s.joints.is_none() {
+                return Err(bad(
+                    "joint offsets need joint angles (q0..) in every sample".into(),
+                ));
+            }
+        }
+        let model_point = model_point(rig, s, None)?;
+        if !model_point.iter().all(|v| v.is_finite()) {
+            return Err(bad("non-finite end-effector position".into()));
+        }
+        let reflected_point = triangulate(rig.camera_refs(), s.pixels)
+            .map_err(|e| bad(format!("cannot triangulate: {e}")))?;
+        out.push(Observation {
+            model_point,
+            joints: s.joints.clone(),
+            reflected_point,
+            pixels: s.pixels,
+        });
+    }
+    if out.len() < MIN_SAMPLES {
+        return Err(CalibrateError::TooFewSamples { found: out.len() });
+    }
+    let mean = out.iter().map(|o| o.model_point).sum::<Vector3<f64>>() / out.len() as f64;
+    let spread_mm = (out
+        .iter()
+        .map(|o| (o.model_point - mean).norm_squared())
+        .sum::<f64>()
+        / out.len() as f64)
+        .sqrt();
+    if spread_mm < MIN_SPREAD_MM {
+        return Err(CalibrateError::PosesAlike { spread_mm });
+    }
+    Ok(out)
+}
+
+/// The mirror plane halfway between the `J`s and the `Ĵ`s (paper Eqs 6-9),
+/// in whatever frame the points are given; normal oriented from `Ĵ` to `J`
+/// (towards the robot).
+pub(crate) fn midplane(
+    pairs: impl Iterator<Item = (Vector3<f64>, Vector3<f64>)> + Clone,
+) -> Result<Plane, GeometryError> {
+    let n = pairs.clone().count() as f64;
+    // Eq 6: the normal is the mean vector from J to Ĵ.
+    let normal = pairs.clone().map(|(j, jh)| jh - j).sum::<Vector3<f64>>() / n;
+    // Eq 8: Π4 places the plane equidistant from both sets.
+    let pi4 = -pairs
+        .map(|(j, jh)| normal.dot(&jh) + normal.dot(&j))
+        .sum::<f64>()
+        / (2.0 * n);
+    // Plane::new normalises; flip so the normal points back to the robot.
+    Ok(Plane::new(normal, pi4)?.flipped())
+}
+
+/// Fails if a camera lies (nearly) in the plane.
+pub(crate) fn check_plane_clear_of_cameras(rig: &Rig, plane: &Plane) -> Result<(), CalibrateError> {
+    for (cam, name) in rig.cameras.iter().zip(&rig.names) {
+        let distance_mm = plane.signed_distance(&cam.center).abs();
+        if !(distance_mm >= MIN_CAMERA_PLANE_DISTANCE_MM) {
+            return Err(CalibrateError::PlaneThroughCamera {
+                camera: name.clone(),
+                distance_mm,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// RMS over samples and cameras of the Euclidean reprojection error.
+pub(crate) fn rms_px(residuals: &nalgebra::DVector<f64>) -> f64 {
+    (residuals.norm_squared() / (residuals.len() as f64 / 2.0)).sqrt()
+}
+
+/// Calibrates the mirror cameras from `samples` (mirror views) with `method`.
+pub fn calibrate(
+    rig: &Rig,
+    samples: &[Sample],
+    method: Method,
+) -> Result<Calibration, CalibrateError> {
+    let obs = prepare(rig, samples, method == Method::JointKinematics)?;
+    let cal = match method {
+        Method::Paper => paper::calibrate(rig, &obs)?,
+        Method::Joint => joint::calibrate(rig, &obs, false)?,
+        Method::JointKinematics => joint::calibrate(rig, &obs, true)?,
+    };
+    let finite = cal.mirror_cameras.iter().all(|c| {
+        c.camera_from_world
+            .iter()
+            .chain(c.center.iter())
+            .all(|v| v.is_finite())
+    }) && cal.train_rms_px.is_finite();
+    if !finite {
+        return Err(GeometryError::NonFinite("calibration result").into());
+    }
+    Ok(cal)
+}

@@ -1,0 +1,285 @@
+//! The offline command line: `calibrate`, `evaluate`, `simulate`, `experiment`.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, anyhow, bail};
+use clap::{Parser, Subcommand, ValueEnum};
+use geometry::sim::{self, Counts, NoiseModel};
+
+use crate::calibrate::{Method, calibrate};
+use crate::evaluate::evaluate;
+use crate::experiment::{self, ExperimentConfig};
+use crate::plot;
+
+/// Mirror perspective-taking: calibrate a robot's mirror-perspective cameras
+/// from views of its own end-effector in a mirror, and evaluate them.
+#[derive(Debug, Parser)]
+#[command(name = "mirror_proc", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Estimate the mirror-perspective cameras from mirror-view samples.
+    Calibrate {
+        /// Rig file (TOML): cameras and arm.
+        #[arg(long)]
+        rig: PathBuf,
+        /// Training samples (CSV).
+        #[arg(long)]
+        samples: PathBuf,
+        /// paper | joint | joint+kinematics (needs joint angles in the samples).
+        #[arg(long, default_value = "joint+kinematics")]
+        method: String,
+        /// Where to write the calibration (JSON); stdout if absent.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Print the paper's error metrics (JSON) of a calibration on test samples.
+    Evaluate {
+        /// Rig file (TOML).
+        #[arg(long)]
+        rig: PathBuf,
+        /// Calibration file (JSON).
+        #[arg(long)]
+        calibration: PathBuf,
+        /// Test samples (CSV), mirror and/or direct views.
+        #[arg(long)]
+        samples: PathBuf,
+    },
+    /// Write a simulated rig, training and test samples, and the ground truth.
+    Simulate {
+        /// Scene preset.
+        #[arg(long, value_enum, default_value_t = Preset::Nico)]
+        preset: Preset,
+        /// Mirror placement (0, 1 or 2).
+        #[arg(long, default_value_t = 0)]
+        mirror: usize,
+        /// Output directory (created): rig.toml, train.csv, test.csv, truth.json.
+        #[arg(long)]
+        out: PathBuf,
+        /// Noise: the preset's, or none.
+        #[arg(long, value_enum, default_value_t = Noise::Preset)]
+        noise: Noise,
+        /// Simulator seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Mirror-view training poses.
+        #[arg(long, default_value_t = 50)]
+        train: usize,
+        /// Mirror-view test poses.
+        #[arg(long, default_value_t = 100)]
+        test: usize,
+        /// Direct-view test poses (appended to test.csv).
+        #[arg(long, default_value_t = 100)]
+        direct: usize,
+    },
+    /// Run the paper's experiment on the simulated robot and print its table.
+    Experiment {
+        /// Scene preset.
+        #[arg(long, value_enum, default_value_t = Preset::Nico)]
+        preset: Preset,
+        /// Write every figure as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Draw the learning curves here (.svg).
+        #[arg(long)]
+        plot: Option<PathBuf>,
+        /// A small run for tests: sizes 3, 5, 10, 20 and 30 test poses per placement.
+        #[arg(long)]
+        quick: bool,
+        /// Noise: the preset's, or none.
+        #[arg(long, value_enum, default_value_t = Noise::Preset)]
+        noise: Noise,
+        /// Simulator seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum Preset {
+    /// The Nico-like robot of the paper.
+    Nico,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum Noise {
+    /// The preset's pixel noise and encoder offsets.
+    Preset,
+    /// No noise at all.
+    None,
+}
+
+fn noise_model(noise: Noise, dof: usize) -> NoiseModel {
+    match noise {
+        Noise::Preset => sim::nico_noise(),
+        Noise::None => NoiseModel::none(dof),
+    }
+}
+
+/// Parses the arguments, runs, and maps any error to one line and exit code 1
+/// (2 for usage errors).
+pub fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !e.use_stderr() => {
+            // --help, --version
+            print!("{e}");
+            return ExitCode::SUCCESS;
+        }
+        Err(e) => {
+            let text = e.to_string();
+            let first = text.lines().next().unwrap_or("invalid arguments");
+            eprintln!("mirror_proc: {}", first.trim_start_matches("error: "));
+            return ExitCode::from(2);
+        }
+    };
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("mirror_proc: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn read_rig(path: &Path) -> Result<geometry::Rig> {
+    Ok(formats::rig::read(path)?)
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Calibrate {
+            rig,
+            samples,
+            method,
+            out,
+        } => {
+            let method: Method = method
+                .parse()
+                .map_err(|e: String| anyhow!("--method: {e}"))?;
+            let rig_model = read_rig(&rig)?;
+            let data = formats::samples::read(&samples, rig_model.arm.as_ref().map(|a| a.dof()))?;
+            let cal = calibrate(&rig_model, &data, method)
+                .with_context(|| format!("{}", samples.display()))?;
+            let json = cal.to_file(&rig_model).to_json();
+            match out {
+                Some(path) => std::fs::write(&path, json)
+                    .with_context(|| format!("{}: cannot write", path.display()))?,
+                None => print!("{json}"),
+            }
+        }
+        Command::Evaluate {
+            rig,
+            calibration,
+            samples,
+        } => {
+            let rig_model = read_rig(&rig)?;
+            let dof = rig_model.arm.as_ref().map(|a| a.dof());
+            let cal = formats::calibration::read(&calibration)?;
+            if let (Some(offsets), Some(dof)) = (&cal.joint_offsets, dof)
+                && offsets.len() != dof
+            {
+                bail!(
+                    "{}: key joint_offsets: {} offsets but the rig's arm has {dof} joints",
+                    calibration.display(),
+                    offsets.len()
+                );
+            }
+            let data = formats::samples::read(&samples, dof)?;
+            let errors = evaluate(
+                &rig_model,
+                &cal.mirror_cameras(&rig_model),
+                cal.nonzero_joint_offsets(),
+                &data,
+            )
+            .with_context(|| format!("{}", samples.display()))?;
+            print!("{}", errors.summary().to_json());
+        }
+        Command::Simulate {
+            preset: Preset::Nico,
+            mirror,
+            out,
+            noise,
+            seed,
+            train,
+            test,
+            direct,
+        } => {
+            let scene = sim::nico_scene();
+            if mirror >= scene.mirrors.len() {
+                bail!(
+                    "--mirror: placement {mirror} does not exist (0..={})",
+                    scene.mirrors.len() - 1
+                );
+            }
+            let dof = scene.rig.arm.as_ref().map_or(0, |a| a.dof());
+            let counts = Counts {
+                train,
+                test,
+                direct,
+            };
+            let data = sim::generate(&scene, mirror, &noise_model(noise, dof), counts, seed)?;
+            std::fs::create_dir_all(&out)
+                .with_context(|| format!("{}: cannot create", out.display()))?;
+            formats::rig::write(out.join("rig.toml"), &data.rig)?;
+            formats::samples::write(out.join("train.csv"), &data.train)?;
+            let test_samples: Vec<_> = data.test.iter().chain(&data.direct).cloned().collect();
+            formats::samples::write(out.join("test.csv"), &test_samples)?;
+            let truth = formats::calibration::CalibrationFile::new(
+                "truth",
+                Some(&data.truth.mirror.plane),
+                &data.rig.names,
+                &data.truth.mirror_cameras,
+                Some(&data.truth.joint_offsets),
+                0.0,
+                0,
+            );
+            formats::calibration::write(out.join("truth.json"), &truth)?;
+            println!(
+                "wrote {}/{{rig.toml, train.csv ({train} mirror poses), test.csv ({test} mirror + {direct} direct poses), truth.json}}",
+                out.display()
+            );
+        }
+        Command::Experiment {
+            preset: Preset::Nico,
+            json,
+            plot: plot_path,
+            quick,
+            noise,
+            seed,
+        } => {
+            let scene = sim::nico_scene();
+            let dof = scene.rig.arm.as_ref().map_or(0, |a| a.dof());
+            let noise = noise_model(noise, dof);
+            let config = if quick {
+                ExperimentConfig::quick("nico", noise, seed)
+            } else {
+                ExperimentConfig::paper("nico", noise, seed)
+            };
+            let started = std::time::Instant::now();
+            let result = experiment::run(&scene, &config, |m| {
+                eprintln!(
+                    "mirror placement {m} done ({:.1} s)",
+                    started.elapsed().as_secs_f64()
+                );
+            })?;
+            print!("{}", experiment::table(&result));
+            if let Some(path) = json {
+                let text = serde_json::to_string_pretty(&result)? + "\n";
+                std::fs::write(&path, text)
+                    .with_context(|| format!("{}: cannot write", path.display()))?;
+                println!("figures: {}", path.display());
+            }
+            if let Some(path) = plot_path {
+                plot::learning_curves(&result, &path)?;
+                println!("plot: {}", path.display());
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,21 @@
+//! The mirror stage: estimating mirror-perspective cameras, evaluating them
+//! with the paper's metrics, reproducing the paper's experiment, and the
+//! offline command line (`mirror_proc calibrate | evaluate | simulate | experiment`).
+//!
+//! ```
+//! use geometry::sim::{generate, nico_scene, NoiseModel, Counts};
+//! use mirror_proc::calibrate::{calibrate, Method};
+//!
+//! let scene = nico_scene();
+//! let data = generate(&scene, 0, &NoiseModel::none(4), Counts { train: 10, test: 0, direct: 0 }, 1).unwrap();
+//! let cal = calibrate(&data.rig, &data.train, Method::Joint).unwrap();
+//! let truth = data.truth.mirror_cameras[0].center;
+//! assert!((cal.mirror_cameras[0].center - truth).norm() < 1e-6);
+//! ```
+#![warn(missing_docs)]
+
+pub mod calibrate;
+pub mod cli;
+pub mod evaluate;
+pub mod experiment;
+pub mod plot;
