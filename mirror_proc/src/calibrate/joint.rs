@@ -10,18 +10,16 @@ use geometry::{GeometryError, Plane, Rig, lsq};
 use nalgebra::{DVector, Vector3};
 
 use super::{
-    CalibrateError, Calibration, Method, Observation, check_plane_clear_of_cameras, midplane,
-    rms_px,
+    CalibrateError, Calibration, Method, Observation, check_plane_clear_of_cameras, rms_px,
 };
 
+/// Refines from `start`, the plane midway between the J's and Ĵ's.
 pub(super) fn calibrate(
     rig: &Rig,
     obs: &[Observation],
+    start: Plane,
     with_kinematics: bool,
 ) -> Result<Calibration, CalibrateError> {
-    // Start: the plane midway between the J's and Ĵ's, in the world frame.
-    let start = midplane(obs.iter().map(|o| (o.model_point, o.reflected_point)))?;
-    check_plane_clear_of_cameras(rig, &start)?;
     let n0 = start.normal.into_inner();
     // Tangent basis at n0.
     let helper = if n0.x.abs() < 0.9 {

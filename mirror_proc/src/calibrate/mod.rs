@@ -285,10 +285,14 @@ pub fn calibrate(
     method: Method,
 ) -> Result<Calibration, CalibrateError> {
     let obs = prepare(rig, samples, method == Method::JointKinematics)?;
+    // The J/Ĵ midplane: the joint methods start from it, and the paper's
+    // per-camera planes are it in each camera's frame.
+    let start = midplane(obs.iter().map(|o| (o.model_point, o.reflected_point)))?;
+    check_plane_clear_of_cameras(rig, &start)?;
     let cal = match method {
         Method::Paper => paper::calibrate(rig, &obs)?,
-        Method::Joint => joint::calibrate(rig, &obs, false)?,
-        Method::JointKinematics => joint::calibrate(rig, &obs, true)?,
+        Method::Joint => joint::calibrate(rig, &obs, start, false)?,
+        Method::JointKinematics => joint::calibrate(rig, &obs, start, true)?,
     };
     let finite = cal.mirror_cameras.iter().all(|c| {
         c.camera_from_world

@@ -1,0 +1,266 @@
+//! The offline command line, run as a user would.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn mirror_proc(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mirror_proc"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = mirror_proc(args);
+    assert!(
+        out.status.success(),
+        "{args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// Runs a command expected to fail; returns its single line of stderr.
+fn fails(args: &[&str]) -> String {
+    let out = mirror_proc(args);
+    assert!(!out.status.success(), "{args:?} should fail");
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "error is not one line: {err}"
+    );
+    err.trim_end().to_string()
+}
+
+fn json(text: &str) -> serde_json::Value {
+    serde_json::from_str(text).unwrap()
+}
+
+fn p(dir: &Path, name: &str) -> String {
+    dir.join(name).display().to_string()
+}
+
+#[test]
+fn noiseless_simulation_calibrates_exactly_with_every_method() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(&[
+        "simulate",
+        "--mirror",
+        "2",
+        "--noise",
+        "none",
+        "--train",
+        "12",
+        "--test",
+        "20",
+        "--direct",
+        "10",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    for method in ["paper", "joint", "joint+kinematics"] {
+        let cal = p(d, &format!("{method}.json"));
+        ok(&[
+            "calibrate",
+            "--rig",
+            &p(d, "rig.toml"),
+            "--samples",
+            &p(d, "train.csv"),
+            "--method",
+            method,
+            "--out",
+            &cal,
+        ]);
+        let e = json(&ok(&[
+            "evaluate",
+            "--rig",
+            &p(d, "rig.toml"),
+            "--calibration",
+            &cal,
+            "--samples",
+            &p(d, "test.csv"),
+        ]));
+        assert!(e["mirror_3d_mm"].as_f64().unwrap() < 1e-6, "{method}: {e}");
+        assert!(e["mirror_2d_px"].as_f64().unwrap() < 1e-6, "{method}: {e}");
+        assert!(e["direct_3d_mm"].as_f64().unwrap() < 1e-6, "{method}: {e}");
+        assert_eq!(e["mirror_count"], 20);
+        assert_eq!(e["direct_count"], 10);
+    }
+}
+
+#[test]
+fn noisy_simulation_approaches_the_truth_files_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(&["simulate", "--mirror", "0", "--out", d.to_str().unwrap()]);
+    let eval = |cal: &str| {
+        json(&ok(&[
+            "evaluate",
+            "--rig",
+            &p(d, "rig.toml"),
+            "--calibration",
+            cal,
+            "--samples",
+            &p(d, "test.csv"),
+        ]))
+    };
+    // truth.json holds the true mirror cameras and encoder offsets: the noise floor.
+    let floor = eval(&p(d, "truth.json"));
+    let cal = p(d, "cal.json");
+    ok(&[
+        "calibrate",
+        "--rig",
+        &p(d, "rig.toml"),
+        "--samples",
+        &p(d, "train.csv"),
+        "--out",
+        &cal,
+    ]);
+    assert_eq!(
+        json(&std::fs::read_to_string(&cal).unwrap())["method"],
+        "joint+kinematics",
+        "the default method"
+    );
+    let ours = eval(&cal);
+    for key in ["mirror_2d_px", "mirror_3d_mm"] {
+        let (a, b) = (ours[key].as_f64().unwrap(), floor[key].as_f64().unwrap());
+        assert!(a < 1.15 * b, "{key}: {a} vs floor {b}");
+    }
+    // The estimated encoder offsets also help direct views, against the nominal arm model.
+    let mut nominal = json(&std::fs::read_to_string(d.join("truth.json")).unwrap());
+    nominal.as_object_mut().unwrap().remove("joint_offsets");
+    std::fs::write(d.join("nominal.json"), nominal.to_string()).unwrap();
+    let nominal = eval(&p(d, "nominal.json"));
+    let (a, b) = (
+        ours["direct_2d_px"].as_f64().unwrap(),
+        nominal["direct_2d_px"].as_f64().unwrap(),
+    );
+    assert!(a < 0.8 * b, "direct 2D {a} px vs nominal model {b} px");
+}
+
+#[test]
+fn bad_input_gives_one_line_naming_the_file_and_place() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(&[
+        "simulate",
+        "--train",
+        "8",
+        "--test",
+        "4",
+        "--direct",
+        "0",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    let rig = p(d, "rig.toml");
+    let train = std::fs::read_to_string(d.join("train.csv")).unwrap();
+    let write = |name: &str, text: &str| {
+        std::fs::write(d.join(name), text).unwrap();
+        p(d, name)
+    };
+    let calibrate = |samples: &str| fails(&["calibrate", "--rig", &rig, "--samples", samples]);
+
+    let missing = write("missing.csv", &train.replace("right_v", "rightv"));
+    assert!(calibrate(&missing).ends_with("missing.csv: line 1: missing column `right_v`"));
+
+    let mut lines: Vec<String> = train.lines().map(String::from).collect();
+    lines[3] = lines[3]
+        .rsplit_once(',')
+        .map(|(head, _)| format!("{head},NaN"))
+        .unwrap();
+    let nan = write("nan.csv", &(lines.join("\n") + "\n"));
+    assert!(calibrate(&nan).ends_with("nan.csv: line 4: column `right_v`: `NaN` is not finite"));
+
+    let three_joints = write("q3.csv", &train.replace(",q3,", ",x3,"));
+    let e = calibrate(&three_joints);
+    assert!(
+        e.contains("q3.csv: line 1: 3 joint columns (q0..q2) but the rig's arm has 4 joints"),
+        "{e}"
+    );
+
+    let e = fails(&[
+        "calibrate",
+        "--rig",
+        &rig,
+        "--samples",
+        &p(d, "train.csv"),
+        "--method",
+        "best",
+    ]);
+    assert!(e.contains("--method: unknown method `best`"), "{e}");
+
+    let bad_rig = write(
+        "bad.toml",
+        &std::fs::read_to_string(&rig)
+            .unwrap()
+            .replacen("fx = ", "fx = \"wide\" #", 1),
+    );
+    let e = fails(&[
+        "calibrate",
+        "--rig",
+        &bad_rig,
+        "--samples",
+        &p(d, "train.csv"),
+    ]);
+    assert!(e.contains("bad.toml: line "), "{e}");
+
+    let bad_cal = write("bad.json", "{\"method\": \"joint\", \"cameras\": []}");
+    let e = fails(&[
+        "evaluate",
+        "--rig",
+        &rig,
+        "--calibration",
+        &bad_cal,
+        "--samples",
+        &p(d, "test.csv"),
+    ]);
+    assert!(
+        e.contains("bad.json: line 1: missing field `train_rms_px`"),
+        "{e}"
+    );
+
+    let e = fails(&[
+        "calibrate",
+        "--rig",
+        &p(d, "absent.toml"),
+        "--samples",
+        &p(d, "train.csv"),
+    ]);
+    assert!(e.contains("absent.toml: cannot read"), "{e}");
+
+    let two = write(
+        "two.csv",
+        &(train.lines().take(3).collect::<Vec<_>>().join("\n") + "\n"),
+    );
+    let e = calibrate(&two);
+    assert!(
+        e.contains("two.csv: 2 usable mirror samples; at least 3 are needed"),
+        "{e}"
+    );
+}
+
+#[test]
+fn quick_experiment_prints_the_table_and_writes_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let (j, plot) = (p(dir.path(), "e.json"), p(dir.path(), "curve.svg"));
+    let out = ok(&["experiment", "--quick", "--json", &j, "--plot", &plot]);
+    for needle in [
+        "31.55",
+        "5.12",
+        "18.47",
+        "5.66",
+        "joint+kinematics (ours)",
+        "oracle",
+        "noise floor",
+    ] {
+        assert!(out.contains(needle), "table lacks {needle}:\n{out}");
+    }
+    let result = json(&std::fs::read_to_string(&j).unwrap());
+    assert_eq!(result["mirrors"].as_array().unwrap().len(), 3);
+    assert_eq!(result["sizes"], serde_json::json!([3, 5, 10, 20]));
+    let svg = std::fs::read_to_string(&plot).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("joint+kinematics, mirror"));
+}
