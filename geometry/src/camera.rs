@@ -154,7 +154,8 @@ impl Camera {
     /// Normalised (undistorted) image coordinates of a world point.
     pub fn normalized(&self, world: &Vector3<f64>) -> Result<Vector2<f64>, GeometryError> {
         let pc = self.to_camera(world);
-        if !(pc.z.abs() > MIN_ABS_DEPTH) {
+        // Also rejects a NaN depth.
+        if pc.z.abs().partial_cmp(&MIN_ABS_DEPTH) != Some(std::cmp::Ordering::Greater) {
             return Err(GeometryError::ZeroDepth);
         }
         Ok(Vector2::new(pc.x / pc.z, pc.y / pc.z))

@@ -15,6 +15,9 @@ pub struct PlotError {
     message: String,
 }
 
+/// Picks one figure out of a summary row.
+type Metric = fn(&Summary) -> Option<f64>;
+
 const METHOD_COLOURS: [RGBColor; 3] = [
     RGBColor(200, 40, 40),
     RGBColor(30, 90, 200),
@@ -48,11 +51,7 @@ pub fn learning_curves(result: &ExperimentResult, path: &Path) -> Result<(), Plo
         )
         .map_err(|e| fail(&e))?;
     let panels = root.split_evenly((1, 2));
-    let metrics: [(
-        &str,
-        fn(&Summary) -> Option<f64>,
-        fn(&Summary) -> Option<f64>,
-    ); 2] = [
+    let metrics: [(&str, Metric, Metric); 2] = [
         // Medians for 3D: a single sample whose mirror rays nearly miss each
         // other (paper method) sends the mean to 1e10 mm and hides the curves.
         (

@@ -199,10 +199,9 @@ fn degenerate_input_is_a_clear_error() {
         let direct: Vec<Sample> = d
             .train
             .iter()
-            .cloned()
             .map(|s| Sample {
                 view: View::Direct,
-                ..s
+                ..s.clone()
             })
             .collect();
         assert_eq!(
@@ -213,8 +212,10 @@ fn degenerate_input_is_a_clear_error() {
     let no_joints: Vec<Sample> = d
         .train
         .iter()
-        .cloned()
-        .map(|s| Sample { joints: None, ..s })
+        .map(|s| Sample {
+            joints: None,
+            ..s.clone()
+        })
         .collect();
     let e = expect_err(&no_joints, Method::JointKinematics);
     assert!(e.to_string().contains("joint angles"), "{e}");

@@ -263,7 +263,8 @@ pub(crate) fn midplane(
 pub(crate) fn check_plane_clear_of_cameras(rig: &Rig, plane: &Plane) -> Result<(), CalibrateError> {
     for (cam, name) in rig.cameras.iter().zip(&rig.names) {
         let distance_mm = plane.signed_distance(&cam.center).abs();
-        if !(distance_mm >= MIN_CAMERA_PLANE_DISTANCE_MM) {
+        // NaN distances fail too.
+        if distance_mm.is_nan() || distance_mm < MIN_CAMERA_PLANE_DISTANCE_MM {
             return Err(CalibrateError::PlaneThroughCamera {
                 camera: name.clone(),
                 distance_mm,
