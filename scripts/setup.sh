@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Installs what the workspace needs on a fresh Debian 12 machine: OpenCV 4.6
+# with the contrib aruco module, and clang for the opencv crate's bindings.
+# Does nothing when everything is already there.
+set -euo pipefail
+
+packages=(pkg-config clang libclang-dev libopencv-dev libopencv-contrib-dev)
+missing=()
+for p in "${packages[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+    echo "setup: installing ${missing[*]}" >&2
+    sudo=""
+    [ "$(id -u)" -ne 0 ] && sudo="sudo"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+command -v cargo >/dev/null || { echo "setup: cargo not found; install Rust (https://rustup.rs)" >&2; exit 1; }
+for component in rustfmt clippy; do
+    if ! cargo "${component/rustfmt/fmt}" --version >/dev/null 2>&1; then
+        echo "setup: adding rustup component $component" >&2
+        rustup component add "$component"
+    fi
+done
