@@ -1,0 +1,394 @@
+//! Opening services with the settings every process must agree on, and thin
+//! publisher/subscriber wrappers that pair each topic with its event service.
+
+use std::fmt::Debug;
+use std::time::Duration;
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::prelude::*;
+
+use crate::FrameHeader;
+
+/// Buffer of each subscriber of small messages: deep enough that nothing is
+/// lost while a stage is busy for seconds (a calibration, a slow start).
+const SMALL_BUFFER: usize = 1024;
+/// Buffer of each frame subscriber: old frames are overwritten, newest kept.
+const FRAME_BUFFER: usize = 4;
+const MAX_PORTS: usize = 16;
+
+/// A failure of the shared-memory transport.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{context}: {message}")]
+pub struct BusError {
+    context: String,
+    message: String,
+}
+
+fn err(context: impl Into<String>) -> impl FnOnce(&dyn Debug) -> BusError {
+    let context = context.into();
+    move |e| BusError {
+        context,
+        message: format!("{e:?}"),
+    }
+}
+
+/// One process's connection to a pipeline: an iceoryx2 node and the prefix
+/// of the pipeline's service names.
+pub struct Bus {
+    node: Node<ipc::Service>,
+    prefix: String,
+}
+
+impl Bus {
+    /// Joins the pipeline `prefix` as node `name`.
+    pub fn new(prefix: &str, name: &str) -> Result<Self, BusError> {
+        if prefix.is_empty() || prefix.contains(char::is_whitespace) {
+            return Err(BusError {
+                context: "prefix".into(),
+                message: format!("`{prefix}` is empty or has spaces"),
+            });
+        }
+        let node_name = NodeName::new(name).map_err(|e| err("node name")(&e))?;
+        let node = NodeBuilder::new()
+            .name(&node_name)
+            .create::<ipc::Service>()
+            .map_err(|e| err("creating the iceoryx2 node")(&e))?;
+        Ok(Self {
+            node,
+            prefix: prefix.to_string(),
+        })
+    }
+
+    /// The pipeline's prefix.
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    fn name(&self, topic: &str, suffix: &str) -> Result<ServiceName, BusError> {
+        let full = format!("mirror/{}/{topic}{suffix}", self.prefix);
+        ServiceName::new(&full).map_err(|e| err(format!("service name {full}"))(&e))
+    }
+
+    fn event(&self, topic: &str) -> Result<PortFactoryEvent, BusError> {
+        self.node
+            .service_builder(&self.name(topic, "/event")?)
+            .event()
+            .max_notifiers(MAX_PORTS)
+            .max_listeners(MAX_PORTS)
+            .max_nodes(MAX_PORTS * 2)
+            .open_or_create()
+            .map_err(|e| err(format!("event service of {topic}"))(&e))
+    }
+
+    fn small_service<T: ZeroCopySend + Debug + 'static>(
+        &self,
+        topic: &str,
+    ) -> Result<PortFactoryPubSub<T>, BusError> {
+        self.node
+            .service_builder(&self.name(topic, "")?)
+            .publish_subscribe::<T>()
+            .subscriber_max_buffer_size(SMALL_BUFFER)
+            .history_size(0)
+            .max_publishers(MAX_PORTS)
+            .max_subscribers(MAX_PORTS)
+            .max_nodes(MAX_PORTS * 2)
+            .open_or_create()
+            .map_err(|e| err(format!("service {topic}"))(&e))
+    }
+
+    fn frame_service(&self, topic: &str) -> Result<PortFactoryFrames, BusError> {
+        self.node
+            .service_builder(&self.name(topic, "")?)
+            .publish_subscribe::<[u8]>()
+            .user_header::<FrameHeader>()
+            .subscriber_max_buffer_size(FRAME_BUFFER)
+            .history_size(0)
+            .max_publishers(MAX_PORTS)
+            .max_subscribers(MAX_PORTS)
+            .max_nodes(MAX_PORTS * 2)
+            .open_or_create()
+            .map_err(|e| err(format!("service {topic}"))(&e))
+    }
+
+    /// A publisher of small fixed-size messages on `topic`.
+    pub fn publisher<T: ZeroCopySend + Debug + Copy + 'static>(
+        &self,
+        topic: &str,
+    ) -> Result<Publisher<T>, BusError> {
+        let service = self.small_service::<T>(topic)?;
+        let publisher = service
+            .publisher_builder()
+            .create()
+            .map_err(|e| err(format!("publisher of {topic}"))(&e))?;
+        let notifier = self
+            .event(topic)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err(format!("notifier of {topic}"))(&e))?;
+        Ok(Publisher {
+            publisher,
+            notifier,
+            topic: topic.into(),
+        })
+    }
+
+    /// A subscriber of small fixed-size messages on `topic`.
+    pub fn subscriber<T: ZeroCopySend + Debug + Copy + 'static>(
+        &self,
+        topic: &str,
+    ) -> Result<Subscriber<T>, BusError> {
+        let service = self.small_service::<T>(topic)?;
+        let subscriber = service
+            .subscriber_builder()
+            .buffer_size(SMALL_BUFFER)
+            .create()
+            .map_err(|e| err(format!("subscriber of {topic}"))(&e))?;
+        let listener = self
+            .event(topic)?
+            .listener_builder()
+            .create()
+            .map_err(|e| err(format!("listener of {topic}"))(&e))?;
+        Ok(Subscriber {
+            subscriber,
+            listener,
+            topic: topic.into(),
+        })
+    }
+
+    /// A publisher of stereo frames of up to `max_bytes` (both images).
+    pub fn frame_publisher(
+        &self,
+        topic: &str,
+        max_bytes: usize,
+    ) -> Result<FramePublisher, BusError> {
+        let service = self.frame_service(topic)?;
+        let publisher = service
+            .publisher_builder()
+            .initial_max_slice_len(max_bytes)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .max_loaned_samples(2)
+            .create()
+            .map_err(|e| err(format!("publisher of {topic}"))(&e))?;
+        let notifier = self
+            .event(topic)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err(format!("notifier of {topic}"))(&e))?;
+        Ok(FramePublisher {
+            publisher,
+            notifier,
+        })
+    }
+
+    /// A subscriber of stereo frames.
+    pub fn frame_subscriber(&self, topic: &str) -> Result<FrameSubscriber, BusError> {
+        let service = self.frame_service(topic)?;
+        let subscriber = service
+            .subscriber_builder()
+            .buffer_size(FRAME_BUFFER)
+            .create()
+            .map_err(|e| err(format!("subscriber of {topic}"))(&e))?;
+        let listener = self
+            .event(topic)?
+            .listener_builder()
+            .create()
+            .map_err(|e| err(format!("listener of {topic}"))(&e))?;
+        Ok(FrameSubscriber {
+            subscriber,
+            listener,
+        })
+    }
+
+    /// Number of subscribers currently attached to `topic` (small messages).
+    pub fn subscriber_count<T: ZeroCopySend + Debug + Copy + 'static>(
+        &self,
+        topic: &str,
+    ) -> Result<usize, BusError> {
+        Ok(self
+            .small_service::<T>(topic)?
+            .dynamic_config()
+            .number_of_subscribers())
+    }
+
+    /// A waitset to sleep on the subscribers' events.
+    pub fn wake(&self) -> Result<Wake, BusError> {
+        Ok(Wake {
+            waitset: WaitSetBuilder::new()
+                .create::<ipc::Service>()
+                .map_err(|e| err("waitset")(&e))?,
+        })
+    }
+}
+
+type PortFactoryEvent = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
+type PortFactoryPubSub<T> =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
+type PortFactoryFrames = iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+    ipc::Service,
+    [u8],
+    FrameHeader,
+>;
+
+/// Publishes small messages and wakes the subscribers.
+pub struct Publisher<T: ZeroCopySend + Debug + Copy + 'static> {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+    topic: String,
+}
+
+impl<T: ZeroCopySend + Debug + Copy + 'static> Publisher<T> {
+    /// Sends a message (written straight into shared memory) and notifies.
+    pub fn send(&self, message: T) -> Result<(), BusError> {
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| err(format!("loan on {}", self.topic))(&e))?;
+        sample
+            .write_payload(message)
+            .send()
+            .map_err(|e| err(format!("send on {}", self.topic))(&e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| err(format!("notify on {}", self.topic))(&e))?;
+        Ok(())
+    }
+}
+
+/// Receives small messages; its listener wakes a [`Wake`].
+pub struct Subscriber<T: ZeroCopySend + Debug + Copy + 'static> {
+    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+    topic: String,
+}
+
+impl<T: ZeroCopySend + Debug + Copy + 'static> Subscriber<T> {
+    /// The next message, if any (copied out: these are small).
+    pub fn receive(&self) -> Result<Option<T>, BusError> {
+        self.listener
+            .try_wait(|_| {})
+            .map_err(|e| err(format!("listener of {}", self.topic))(&e))?;
+        Ok(self
+            .subscriber
+            .receive()
+            .map_err(|e| err(format!("receive on {}", self.topic))(&e))?
+            .map(|s| *s.payload()))
+    }
+
+    /// The event listener, to attach to a [`Wake`].
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+}
+
+/// Publishes stereo frames rendered or decoded straight into shared memory.
+pub struct FramePublisher {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, [u8], FrameHeader>,
+    notifier: Notifier<ipc::Service>,
+}
+
+impl FramePublisher {
+    /// Loans `2 * header.image_len()` bytes, lets `fill` draw both images in
+    /// place (left, right), then sends and notifies.
+    pub fn publish<E>(
+        &self,
+        header: FrameHeader,
+        fill: impl FnOnce(&mut [u8], &mut [u8]) -> Result<(), E>,
+    ) -> Result<Result<(), E>, BusError> {
+        let len = header.image_len();
+        let mut sample = self
+            .publisher
+            .loan_slice(2 * len)
+            .map_err(|e| err("loan a frame")(&e))?;
+        *sample.user_header_mut() = header;
+        let (left, right) = sample.payload_mut().split_at_mut(len);
+        if let Err(e) = fill(left, right) {
+            return Ok(Err(e));
+        }
+        sample.send().map_err(|e| err("send a frame")(&e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| err("notify a frame")(&e))?;
+        Ok(Ok(()))
+    }
+}
+
+/// Receives stereo frames without copying them.
+pub struct FrameSubscriber {
+    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], FrameHeader>,
+    listener: Listener<ipc::Service>,
+}
+
+impl FrameSubscriber {
+    /// Calls `f` on the next frame in shared memory, if any.
+    pub fn receive_with<R>(
+        &self,
+        f: impl FnOnce(&FrameHeader, &[u8]) -> R,
+    ) -> Result<Option<R>, BusError> {
+        self.listener
+            .try_wait(|_| {})
+            .map_err(|e| err("frame listener")(&e))?;
+        match self
+            .subscriber
+            .receive()
+            .map_err(|e| err("receive a frame")(&e))?
+        {
+            Some(sample) => Ok(Some(f(sample.user_header(), sample.payload()))),
+            None => Ok(None),
+        }
+    }
+
+    /// The event listener, to attach to a [`Wake`].
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+}
+
+/// Sleeps until a subscriber is notified, a period passes, or a signal asks
+/// the process to stop.
+pub struct Wake {
+    waitset: WaitSet<ipc::Service>,
+}
+
+impl Wake {
+    /// Runs `on_wake` each time any of `listeners` is notified or `tick`
+    /// passes, until it returns `false` or SIGINT/SIGTERM arrives.
+    pub fn run(
+        &self,
+        listeners: &[&Listener<ipc::Service>],
+        tick: Option<Duration>,
+        mut on_wake: impl FnMut() -> bool,
+    ) -> Result<(), BusError> {
+        let mut guards = Vec::new();
+        for l in listeners {
+            guards.push(
+                self.waitset
+                    .attach_notification(*l)
+                    .map_err(|e| err("attach a listener")(&e))?,
+            );
+        }
+        let _interval = match tick {
+            Some(period) => Some(
+                self.waitset
+                    .attach_interval(period)
+                    .map_err(|e| err("attach an interval")(&e))?,
+            ),
+            None => None,
+        };
+        // Deliver anything that arrived before we attached.
+        if !on_wake() {
+            return Ok(());
+        }
+        self.waitset
+            .wait_and_process(|_| {
+                if on_wake() {
+                    CallbackProgression::Continue
+                } else {
+                    CallbackProgression::Stop
+                }
+            })
+            .map_err(|e| err("waitset")(&e))?;
+        drop(guards);
+        Ok(())
+    }
+}

@@ -1,0 +1,65 @@
+//! Message types of every topic and the iceoryx2 plumbing the stages share.
+//!
+//! Every type is `#[repr(C)]`, [`ZeroCopySend`] with a versioned type name,
+//! of fixed capacity, and laid out without implicit padding (checked by the
+//! size assertions below). Stereo frames travel as a `[u8]` slice (left
+//! image then right image) with a [`FrameHeader`] user header.
+//!
+//! Each topic is a publish-subscribe service `<prefix>/<topic>` plus an event
+//! service `<prefix>/<topic>/event`: publishers notify after sending, and
+//! subscribers sleep in a [`iceoryx2::waitset::WaitSet`] until notified, so
+//! nothing polls. The prefix keeps tests and parallel pipelines apart.
+//!
+//! ```no_run
+//! use messages::{Bus, JointState, topics};
+//! let bus = Bus::new("demo", "example")?;
+//! let publisher = bus.publisher::<JointState>(topics::JOINT_STATE)?;
+//! publisher.send(JointState::default())?;
+//! # Ok::<(), messages::BusError>(())
+//! ```
+#![warn(missing_docs)]
+
+mod bus;
+mod types;
+
+pub use bus::{Bus, BusError, FramePublisher, FrameSubscriber, Publisher, Subscriber, Wake};
+pub use types::*;
+
+/// Topic names (appended to the prefix).
+pub mod topics {
+    /// Stereo frames, `[u8]` with a [`crate::FrameHeader`].
+    pub const FRAMES: &str = "frames";
+    /// [`crate::StereoDetections`].
+    pub const DETECTIONS: &str = "detections";
+    /// [`crate::JointState`].
+    pub const JOINT_STATE: &str = "joint_state";
+    /// [`crate::MirrorSample`].
+    pub const SAMPLES: &str = "samples";
+    /// [`crate::CalibrationMsg`].
+    pub const CALIBRATION: &str = "calibration";
+    /// [`crate::Prediction`].
+    pub const PREDICTIONS: &str = "predictions";
+    /// [`crate::LocatedObject`].
+    pub const LOCATED: &str = "located";
+    /// Every small-message topic, for tools that subscribe to all of them.
+    pub const ALL_SMALL: [&str; 6] = [
+        DETECTIONS,
+        JOINT_STATE,
+        SAMPLES,
+        CALIBRATION,
+        PREDICTIONS,
+        LOCATED,
+    ];
+}
+
+/// CLOCK_MONOTONIC in nanoseconds: the one clock every stage stamps with,
+/// comparable across processes on this machine.
+pub fn now_ns() -> i64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec * 1_000_000_000 + ts.tv_nsec
+}

@@ -1,0 +1,364 @@
+//! The message types. Units: mm, rad, px, ns (`i64`, CLOCK_MONOTONIC).
+
+use iceoryx2::prelude::ZeroCopySend;
+use nalgebra::{Matrix3, Vector2, Vector3};
+
+/// Most markers reported per camera image.
+pub const MAX_MARKERS: usize = 16;
+/// Most joints in a joint state.
+pub const MAX_JOINTS: usize = 8;
+/// Largest image side accepted, px.
+pub const MAX_IMAGE_SIDE: u32 = 4096;
+
+/// Pixel encodings of a frame.
+pub mod encoding {
+    /// 8-bit grey.
+    pub const MONO8: u32 = 0;
+    /// 8-bit blue, green, red.
+    pub const BGR8: u32 = 1;
+}
+
+/// User header of a stereo frame; the payload holds the left then the right
+/// image, each `height * stride` bytes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[type_name("mirror.FrameHeader.v1")]
+#[repr(C)]
+pub struct FrameHeader {
+    /// Frame sequence number.
+    pub seq: u64,
+    /// Capture time, ns.
+    pub stamp_ns: i64,
+    /// Image width, px.
+    pub width: u32,
+    /// Image height, px.
+    pub height: u32,
+    /// Bytes per image row.
+    pub stride: u32,
+    /// [`encoding`] of both images.
+    pub encoding: u32,
+}
+
+impl FrameHeader {
+    /// Bytes per pixel of the encoding, if known.
+    pub fn bytes_per_pixel(&self) -> Option<u32> {
+        match self.encoding {
+            encoding::MONO8 => Some(1),
+            encoding::BGR8 => Some(3),
+            _ => None,
+        }
+    }
+
+    /// Bytes of one image.
+    pub fn image_len(&self) -> usize {
+        self.height as usize * self.stride as usize
+    }
+
+    /// Checks the header against the payload length; says what is wrong.
+    pub fn validate(&self, payload_len: usize) -> Result<(), String> {
+        let bpp = self
+            .bytes_per_pixel()
+            .ok_or_else(|| format!("unknown encoding {}", self.encoding))?;
+        if self.width == 0
+            || self.height == 0
+            || self.width > MAX_IMAGE_SIDE
+            || self.height > MAX_IMAGE_SIDE
+        {
+            return Err(format!(
+                "image size {}x{} out of range",
+                self.width, self.height
+            ));
+        }
+        if self.stride < self.width * bpp {
+            return Err(format!(
+                "stride {} below width {} x {bpp}",
+                self.stride, self.width
+            ));
+        }
+        if payload_len != 2 * self.image_len() {
+            return Err(format!(
+                "payload of {payload_len} bytes, expected {}",
+                2 * self.image_len()
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// One marker found in one image.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.Marker.v1")]
+#[repr(C)]
+pub struct Marker {
+    /// Marker id in its dictionary.
+    pub id: u32,
+    /// 1 if seen mirror-reversed, else 0.
+    pub mirrored: u32,
+    /// Corners as detected (x0, y0, ... x3, y3), px.
+    pub corners: [f64; 8],
+    /// Intersection of the diagonals, px.
+    pub center: [f64; 2],
+}
+
+/// The markers found in one camera image.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.CameraMarkers.v1")]
+#[repr(C)]
+pub struct CameraMarkers {
+    /// Valid entries in `markers`.
+    pub count: u32,
+    /// Markers dropped for lack of room.
+    pub overflow: u32,
+    /// The markers.
+    pub markers: [Marker; MAX_MARKERS],
+}
+
+impl CameraMarkers {
+    /// The valid markers.
+    pub fn iter(&self) -> impl Iterator<Item = &Marker> {
+        self.markers
+            .iter()
+            .take((self.count as usize).min(MAX_MARKERS))
+    }
+
+    /// Adds a marker, or counts it as overflow.
+    pub fn push(&mut self, m: Marker) {
+        if (self.count as usize) < MAX_MARKERS {
+            self.markers[self.count as usize] = m;
+            self.count += 1;
+        } else {
+            self.overflow += 1;
+        }
+    }
+
+    /// The marker with `id` and mirror flag, if found.
+    pub fn find(&self, id: u32, mirrored: bool) -> Option<&Marker> {
+        self.iter()
+            .find(|m| m.id == id && (m.mirrored != 0) == mirrored)
+    }
+}
+
+/// Detections of one stereo frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.StereoDetections.v1")]
+#[repr(C)]
+pub struct StereoDetections {
+    /// The frame's sequence number.
+    pub seq: u64,
+    /// The frame's capture time, ns.
+    pub stamp_ns: i64,
+    /// Left then right.
+    pub cameras: [CameraMarkers; 2],
+}
+
+/// Motion phases of the arm.
+pub mod phase {
+    /// Moving between poses.
+    pub const MOVING: u32 = 0;
+    /// Holding still at a pose.
+    pub const SETTLED: u32 = 1;
+    /// The pose plan is finished.
+    pub const DONE: u32 = 2;
+}
+
+/// What a pose is for.
+pub mod role {
+    /// Calibration (training) pose, seen in the mirror.
+    pub const TRAIN: u32 = 0;
+    /// Test pose, seen in the mirror.
+    pub const TEST: u32 = 1;
+    /// Test pose, seen directly.
+    pub const DIRECT: u32 = 2;
+}
+
+/// The arm's joint state and the end-effector model's prediction.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.JointState.v1")]
+#[repr(C)]
+pub struct JointState {
+    /// Message sequence number.
+    pub seq: u64,
+    /// Time of the reading, ns.
+    pub stamp_ns: i64,
+    /// Pose id of the plan (the pose being moved to or held).
+    pub pose: u64,
+    /// [`phase`].
+    pub phase: u32,
+    /// [`role`] of the pose.
+    pub role: u32,
+    /// Valid entries in `q`.
+    pub dof: u32,
+    /// Explicit padding (keeps `q` 8-byte aligned without implicit padding).
+    pub reserved: u32,
+    /// Joint readings, rad.
+    pub q: [f64; MAX_JOINTS],
+    /// End-effector model's position `J` for `q`, mm (world).
+    pub model_point: [f64; 3],
+}
+
+impl JointState {
+    /// The valid joint readings.
+    pub fn joints(&self) -> &[f64] {
+        &self.q[..(self.dof as usize).min(MAX_JOINTS)]
+    }
+}
+
+/// One paired sample: a settled pose and the first stereo detection after it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.MirrorSample.v1")]
+#[repr(C)]
+pub struct MirrorSample {
+    /// Pose id.
+    pub pose: u64,
+    /// Stamp of the detection used, ns.
+    pub stamp_ns: i64,
+    /// [`role`] of the pose.
+    pub role: u32,
+    /// Valid entries in `q`.
+    pub dof: u32,
+    /// Joint readings, rad.
+    pub q: [f64; MAX_JOINTS],
+    /// The model's `J`, mm.
+    pub model_point: [f64; 3],
+    /// Marker centre, left then right (u, v), px.
+    pub pixels: [[f64; 2]; 2],
+    /// Triangulated through the real cameras (`Ĵ` for mirror views), mm.
+    pub triangulated: [f64; 3],
+}
+
+impl MirrorSample {
+    /// As a geometry sample (for the solvers and evaluation).
+    pub fn to_sample(&self) -> geometry::Sample {
+        geometry::Sample {
+            pose: self.pose,
+            view: if self.role == role::DIRECT {
+                geometry::View::Direct
+            } else {
+                geometry::View::Mirror
+            },
+            joints: Some(self.q[..(self.dof as usize).min(MAX_JOINTS)].to_vec()),
+            model_point: Some(Vector3::from(self.model_point)),
+            pixels: self.pixels.map(Vector2::from),
+        }
+    }
+}
+
+/// A mirror-perspective camera's pose.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.CameraPose.v1")]
+#[repr(C)]
+pub struct CameraPose {
+    /// Row-major `R` (camera from world).
+    pub camera_from_world: [f64; 9],
+    /// Centre in world, mm.
+    pub center: [f64; 3],
+}
+
+impl CameraPose {
+    /// From a camera.
+    pub fn from_camera(c: &geometry::Camera) -> Self {
+        let mut r = [0.0; 9];
+        for i in 0..3 {
+            for j in 0..3 {
+                r[3 * i + j] = c.camera_from_world[(i, j)];
+            }
+        }
+        Self {
+            camera_from_world: r,
+            center: c.center.into(),
+        }
+    }
+
+    /// To a camera with the given intrinsics.
+    pub fn to_camera(&self, intrinsics: geometry::Intrinsics) -> geometry::Camera {
+        geometry::Camera::new(
+            intrinsics,
+            Matrix3::from_row_slice(&self.camera_from_world),
+            Vector3::from(self.center),
+        )
+    }
+}
+
+/// A calibration of the mirror cameras.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.Calibration.v1")]
+#[repr(C)]
+pub struct CalibrationMsg {
+    /// Stamp of the newest sample used, ns.
+    pub stamp_ns: i64,
+    /// Number of calibrations published so far (1 for the first).
+    pub revision: u64,
+    /// 0 paper, 1 joint, 2 joint+kinematics.
+    pub method: u32,
+    /// Training samples used.
+    pub samples: u32,
+    /// 1 if `plane` is set.
+    pub has_plane: u32,
+    /// Valid entries in `joint_offsets`.
+    pub dof: u32,
+    /// Plane normal (towards the robot) and offset `d`.
+    pub plane: [f64; 4],
+    /// Mirror cameras, left then right.
+    pub cameras: [CameraPose; 2],
+    /// Estimated encoder offsets, rad.
+    pub joint_offsets: [f64; MAX_JOINTS],
+    /// RMS training reprojection error, px.
+    pub train_rms_px: f64,
+}
+
+/// A test sample's prediction through the current calibration.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.Prediction.v1")]
+#[repr(C)]
+pub struct Prediction {
+    /// Pose id.
+    pub pose: u64,
+    /// Stamp of the sample, ns.
+    pub stamp_ns: i64,
+    /// Calibration revision used.
+    pub revision: u64,
+    /// [`role`].
+    pub role: u32,
+    /// Explicit padding.
+    pub reserved: u32,
+    /// The model's `J` (with estimated offsets), mm.
+    pub model_point: [f64; 3],
+    /// The detection reconstructed through the (mirror) cameras, mm.
+    pub reconstructed: [f64; 3],
+    /// `J` projected into left and right, px.
+    pub predicted_pixels: [[f64; 2]; 2],
+    /// 3D error, mm.
+    pub error_mm: f64,
+    /// Mean 2D error over both cameras, px.
+    pub error_px: f64,
+}
+
+/// A marker other than the arm's, located through the mirror.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("mirror.LocatedObject.v1")]
+#[repr(C)]
+pub struct LocatedObject {
+    /// Stamp of the detection, ns.
+    pub stamp_ns: i64,
+    /// Calibration revision used.
+    pub revision: u64,
+    /// Marker id.
+    pub id: u32,
+    /// Explicit padding.
+    pub reserved: u32,
+    /// Position in the world (robot) frame, mm.
+    pub position: [f64; 3],
+}
+
+// No implicit padding: each size equals the sum of its fields.
+const _: () = {
+    assert!(size_of::<FrameHeader>() == 8 + 8 + 4 * 4);
+    assert!(size_of::<Marker>() == 4 + 4 + 8 * 8 + 2 * 8);
+    assert!(size_of::<CameraMarkers>() == 8 + MAX_MARKERS * size_of::<Marker>());
+    assert!(size_of::<StereoDetections>() == 16 + 2 * size_of::<CameraMarkers>());
+    assert!(size_of::<JointState>() == 8 * 3 + 4 * 4 + 8 * MAX_JOINTS + 24);
+    assert!(size_of::<MirrorSample>() == 16 + 8 + 8 * MAX_JOINTS + 24 + 32 + 24);
+    assert!(size_of::<CameraPose>() == 12 * 8);
+    assert!(size_of::<CalibrationMsg>() == 16 + 16 + 32 + 2 * 96 + 8 * MAX_JOINTS + 8);
+    assert!(size_of::<Prediction>() == 24 + 8 + 24 + 24 + 32 + 16);
+    assert!(size_of::<LocatedObject>() == 16 + 8 + 24);
+};
