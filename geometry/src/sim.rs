@@ -144,6 +144,9 @@ pub struct Dataset {
 
 /// Pixels kept clear of the image border for a sample to count as seen.
 const IMAGE_MARGIN_PX: f64 = 15.0;
+/// Half the side of the marker card (code and white margin), mm: the whole
+/// card must be in view for a pose to count as seen.
+pub const CARD_HALF_SIDE_MM: f64 = 45.0;
 /// Closest the marker may come to the glass, mm.
 const MIN_MIRROR_CLEARANCE_MM: f64 = 40.0;
 /// Pose draws allowed per accepted sample before giving up.
@@ -231,9 +234,9 @@ pub fn nico_noise() -> NoiseModel {
 }
 
 /// Pixel noise of the `nico` preset.
-pub const NICO_PIXEL_SIGMA: f64 = 2.2;
+pub const NICO_PIXEL_SIGMA: f64 = 2.6;
 /// Encoder offset scale (rad) of the `nico` preset.
-pub const NICO_OFFSET_SCALE: f64 = 0.008;
+pub const NICO_OFFSET_SCALE: f64 = 0.007;
 
 /// The preset's shape of encoder offsets, scaled: used to fit the preset.
 pub fn nico_noise_scaled(pixel_sigma: f64, offset_scale: f64) -> NoiseModel {
@@ -244,6 +247,28 @@ pub fn nico_noise_scaled(pixel_sigma: f64, offset_scale: f64) -> NoiseModel {
             .map(|w| w * offset_scale)
             .collect(),
     }
+}
+
+/// Whether a card of half side [`CARD_HALF_SIDE_MM`] centred at `p` (any
+/// orientation) projects inside the image with [`IMAGE_MARGIN_PX`] to spare,
+/// and, for a virtual point `p` behind `glass`, is seen through the glass.
+fn card_in_view(cam: &Camera, p: &Vector3<f64>, glass: Option<&Mirror>) -> bool {
+    let h = CARD_HALF_SIDE_MM;
+    let offsets = [
+        Vector3::zeros(),
+        Vector3::x() * h,
+        -Vector3::x() * h,
+        Vector3::y() * h,
+        -Vector3::y() * h,
+    ];
+    offsets.iter().all(|o| {
+        let q = p + o;
+        cam.depth(&q) > 0.0
+            && cam
+                .project(&q)
+                .is_ok_and(|px| cam.intrinsics.contains(&px, IMAGE_MARGIN_PX))
+            && glass.is_none_or(|m| m.ray_hits_glass(&cam.center, &q))
+    })
 }
 
 /// Draws a dataset for mirror `mirror_index` of `scene`. Deterministic in `seed`.
@@ -291,11 +316,11 @@ pub fn generate(
         let virt = mirror.plane.reflect_point(p);
         let mut px = [Vector2::zeros(); 2];
         for k in 0..2 {
-            if cams[k].depth(&virt) <= 0.0 || !mirror.ray_hits_glass(&cams[k].center, &virt) {
+            if cams[k].depth(&virt) <= 0.0 {
                 return None;
             }
             px[k] = cams[k].project(&virt).ok()?;
-            if !cams[k].intrinsics.contains(&px[k], IMAGE_MARGIN_PX) {
+            if !card_in_view(&cams[k], &virt, Some(&mirror)) {
                 return None;
             }
         }
@@ -310,7 +335,7 @@ pub fn generate(
                 return None;
             }
             px[k] = cams[k].project(p).ok()?;
-            if !cams[k].intrinsics.contains(&px[k], IMAGE_MARGIN_PX) {
+            if !card_in_view(&cams[k], p, None) {
                 return None;
             }
         }

@@ -1,11 +1,16 @@
 //! Stereo triangulation.
 //!
-//! Method: the linear DLT (Hartley & Zisserman, 12.2) on undistorted,
-//! normalised coordinates gives a start; Levenberg-Marquardt then minimises
-//! the pixel reprojection error in both cameras with distortion (the
-//! maximum-likelihood point under isotropic Gaussian pixel noise). Neither
-//! step tests the sign of the depth, so it works for mirror cameras, whose
-//! points lie at negative depth.
+//! Method: the midpoint of the two rays' closest approach gives a start;
+//! Levenberg-Marquardt then minimises the pixel reprojection error in both
+//! cameras with distortion (the maximum-likelihood point under isotropic
+//! Gaussian pixel noise). Neither step tests the sign of the depth, so it
+//! works for mirror cameras, whose points lie at negative depth.
+//!
+//! Why not start from the linear DLT ([`triangulate_dlt`], kept for
+//! comparison with OpenCV): it is not invariant to the mirror's reflection
+//! (a non-orthogonal homogeneous transform), and through mirror cameras, with
+//! noise, it can land on the wrong side of the cameras, from where the
+//! refinement runs off to infinity. The midpoint commutes with reflections.
 
 use nalgebra::{DVector, Matrix4, Vector2, Vector3};
 
@@ -70,13 +75,45 @@ fn reprojection(
     Some(r)
 }
 
+/// The midpoint of the shortest segment between the two viewing rays
+/// (taken as full lines, so the sign of the depth does not matter).
+pub fn triangulate_midpoint(
+    cameras: [&Camera; 2],
+    pixels: [Vector2<f64>; 2],
+) -> Result<Vector3<f64>, GeometryError> {
+    let mut dirs = [Vector3::zeros(); 2];
+    for k in 0..2 {
+        let xy = cameras[k].intrinsics.undistort_pixel(&pixels[k])?;
+        let ray = cameras[k].camera_from_world.transpose() * Vector3::new(xy.x, xy.y, 1.0);
+        dirs[k] = ray.normalize();
+    }
+    let (c0, c1) = (cameras[0].center, cameras[1].center);
+    let w = c0 - c1;
+    let b = dirs[0].dot(&dirs[1]);
+    let (d, e) = (dirs[0].dot(&w), dirs[1].dot(&w));
+    let denom = 1.0 - b * b;
+    if denom < 1e-14 {
+        return Err(GeometryError::Degenerate(
+            "rays are parallel: the point is at infinity".into(),
+        ));
+    }
+    let t0 = (b * e - d) / denom;
+    let t1 = (e - b * d) / denom;
+    let p = 0.5 * ((c0 + dirs[0] * t0) + (c1 + dirs[1] * t1));
+    if p.iter().all(|v| v.is_finite()) {
+        Ok(p)
+    } else {
+        Err(GeometryError::NonFinite("triangulated point"))
+    }
+}
+
 /// Triangulates a point seen at `pixels` (raw, distorted) by two cameras:
-/// DLT, then reprojection-error refinement.
+/// ray midpoint, then reprojection-error refinement.
 pub fn triangulate(
     cameras: [&Camera; 2],
     pixels: [Vector2<f64>; 2],
 ) -> Result<Vector3<f64>, GeometryError> {
-    let start = triangulate_dlt(cameras, pixels)?;
+    let start = triangulate_midpoint(cameras, pixels)?;
     let (x, _) = lsq::minimize(DVector::from_column_slice(start.as_slice()), |x| {
         reprojection(cameras, &pixels, &Vector3::new(x[0], x[1], x[2]))
     })?;
@@ -140,6 +177,37 @@ mod tests {
             let px = [virt[0].project(&p).unwrap(), virt[1].project(&p).unwrap()];
             let got = triangulate([&virt[0], &virt[1]], px).unwrap();
             prop_assert!((got - p).norm() < 1e-6 * 1000.0, "{} vs {}", got, p);
+        }
+    }
+
+    #[test]
+    fn noisy_mirror_triangulation_is_the_reflection_of_the_real_one() {
+        // Through the mirror cameras the best point is the reflection of the
+        // best point through the real cameras; the DLT start broke this.
+        let cams = stereo();
+        let mirror = Plane::new(Vector3::new(0.1, 0.15, -1.0), 520.0).unwrap();
+        let virt = [
+            mirror.mirror_camera(&cams[0]),
+            mirror.mirror_camera(&cams[1]),
+        ];
+        for i in 0..200 {
+            let t = f64::from(i);
+            let p = Vector3::new(
+                150.0 * (0.37 * t).sin(),
+                100.0 + 80.0 * (0.23 * t).cos(),
+                150.0 + 100.0 * (0.11 * t).sin(),
+            );
+            let noise = |s: f64| Vector2::new((1.7 * s).sin(), (2.9 * s).cos()) * 3.0;
+            let px = [
+                virt[0].project(&p).unwrap() + noise(t),
+                virt[1].project(&p).unwrap() + noise(t + 0.5),
+            ];
+            let real = triangulate([&cams[0], &cams[1]], px).unwrap();
+            let through_mirror = triangulate([&virt[0], &virt[1]], px).unwrap();
+            assert!(
+                (mirror.reflect_point(&real) - through_mirror).norm() < 1e-6 * (1.0 + real.norm()),
+                "{real} vs {through_mirror}"
+            );
         }
     }
 

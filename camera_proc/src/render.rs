@@ -1,0 +1,434 @@
+//! Rendering what the simulated head sees, with real ArUco marker images.
+//!
+//! The arm's marker is a square card (60 mm of black-bordered code inside a
+//! 15 mm white margin) centred on the end-effector as placed by the arm's
+//! *true* kinematics (encoder reading plus the simulator's true offsets). We
+//! model the wrist as keeping the card facing the head's mirror image (so
+//! it reads in the mirror), or the head itself for direct views. Per camera:
+//! OpenCV warps each marker texture onto an ideal (undistorted) image, at
+//! its reflected corners for a mirror view (which is what mirror-reverses
+//! it) and only where the ray passes through the mirror's finite glass; then
+//! `remap` applies the lens distortion straight into the output buffer,
+//! followed by a Gaussian blur and sensor noise.
+
+use anyhow::{Context, Result, bail};
+use geometry::sim::{Mirror, nico_noise, nico_scene};
+use geometry::{Camera, Rig};
+use nalgebra::{Vector2, Vector3};
+use opencv::core::{self, Mat, Point2f, Scalar, Size, Vector};
+use opencv::prelude::*;
+use opencv::{aruco, imgproc};
+
+/// Marker side (the black square), mm.
+pub const MARKER_SIZE_MM: f64 = 60.0;
+/// White margin around it, mm.
+pub const MARKER_MARGIN_MM: f64 = 15.0;
+/// Texture pixels per marker module side.
+const TEXTURE_MARKER_PX: i32 = 120;
+/// Grey level of the background.
+const BACKGROUND: f64 = 110.0;
+
+/// A marked object fixed in the world (not on the arm).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FixedMarker {
+    /// ArUco id (`DICT_4X4_50`).
+    pub id: u32,
+    /// Centre in the world, mm.
+    pub center: Vector3<f64>,
+}
+
+/// Image degradation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageNoise {
+    /// Gaussian blur sigma, px (0 = none).
+    pub blur_sigma: f64,
+    /// Additive sensor noise, grey levels (0 = none).
+    pub noise_sigma: f64,
+}
+
+/// Everything the renderer knows: the true world, not the robot's model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimWorld {
+    /// The head's cameras (exact) and arm model (nominal).
+    pub rig: Rig,
+    /// The mirror, if one is placed.
+    pub mirror: Option<Mirror>,
+    /// True encoder offsets: true angle = reading + offset.
+    pub true_offsets: Vec<f64>,
+    /// ArUco id of the arm's marker.
+    pub arm_marker: u32,
+    /// Other marked objects.
+    pub fixed: Vec<FixedMarker>,
+    /// Image degradation.
+    pub noise: ImageNoise,
+}
+
+/// Id of the arm's marker in the simulated worlds.
+pub const ARM_MARKER_ID: u32 = 0;
+/// Id of the object placed where only the mirror shows it.
+pub const HIDDEN_OBJECT_ID: u32 = 7;
+
+impl SimWorld {
+    /// The Nico scene in front of mirror `mirror`, with the preset's encoder
+    /// offsets, and a marked object beside and behind the head that the
+    /// cameras can only see in the mirror.
+    pub fn nico(mirror: usize) -> Result<Self> {
+        let scene = nico_scene();
+        let glass = *scene.mirrors.get(mirror).with_context(|| {
+            format!(
+                "mirror placement {mirror} does not exist (0..={})",
+                scene.mirrors.len() - 1
+            )
+        })?;
+        Ok(Self {
+            rig: scene.rig,
+            mirror: Some(glass),
+            true_offsets: nico_noise().joint_offsets,
+            arm_marker: ARM_MARKER_ID,
+            fixed: vec![FixedMarker {
+                id: HIDDEN_OBJECT_ID,
+                center: Vector3::new(-40.0, 40.0, -60.0),
+            }],
+            noise: ImageNoise {
+                blur_sigma: 0.6,
+                noise_sigma: 2.0,
+            },
+        })
+    }
+}
+
+/// Which way the arm's card is turned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Facing {
+    /// Towards the head's mirror image, to be read in the mirror.
+    Mirror,
+    /// Towards the head, to be read directly.
+    Head,
+}
+
+/// Where things really were in a rendered frame (for tests).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RenderTruth {
+    /// Per camera, the markers drawn: id, mirrored, corners (distorted px, in texture order TL, TR, BR, BL).
+    pub markers: [Vec<(u32, bool, [Vector2<f64>; 4])>; 2],
+    /// True end-effector position, mm.
+    pub end_effector: Option<Vector3<f64>>,
+}
+
+/// Renders stereo frames of a [`SimWorld`].
+pub struct Renderer {
+    world: SimWorld,
+    textures: Vec<(u32, Mat)>,
+    /// Per camera: for each distorted pixel, the ideal pixel to sample.
+    maps: [(Mat, Mat); 2],
+    canvas: Mat,
+}
+
+/// Card corners (TL, TR, BR, BL as the viewer at `eye` sees them) of a card
+/// of side `side` centred at `center` and facing `eye`.
+fn card_corners(center: &Vector3<f64>, eye: &Vector3<f64>, side: f64) -> [Vector3<f64>; 4] {
+    let n = (eye - center).normalize();
+    let world_up = Vector3::new(0.0, -1.0, 0.0);
+    let up = (world_up - n * world_up.dot(&n))
+        .try_normalize(1e-9)
+        .unwrap_or_else(Vector3::x);
+    let right = up.cross(&n);
+    let h = side / 2.0;
+    [
+        center - right * h + up * h,
+        center + right * h + up * h,
+        center + right * h - up * h,
+        center - right * h - up * h,
+    ]
+}
+
+impl Renderer {
+    /// Prepares textures and distortion maps.
+    pub fn new(world: SimWorld) -> Result<Self> {
+        let dictionary =
+            aruco::get_predefined_dictionary(aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50)?;
+        let margin_px =
+            (f64::from(TEXTURE_MARKER_PX) * MARKER_MARGIN_MM / MARKER_SIZE_MM).round() as i32;
+        let mut textures = Vec::new();
+        for id in std::iter::once(world.arm_marker).chain(world.fixed.iter().map(|f| f.id)) {
+            if id >= 50 {
+                bail!("marker id {id} is not in DICT_4X4_50");
+            }
+            let mut code = Mat::default();
+            aruco::draw_marker(&dictionary, id as i32, TEXTURE_MARKER_PX, &mut code, 1)?;
+            let mut texture = Mat::default();
+            core::copy_make_border(
+                &code,
+                &mut texture,
+                margin_px,
+                margin_px,
+                margin_px,
+                margin_px,
+                core::BORDER_CONSTANT,
+                Scalar::all(255.0),
+            )?;
+            textures.push((id, texture));
+        }
+        let maps = [
+            distortion_maps(&world.rig.cameras[0])?,
+            distortion_maps(&world.rig.cameras[1])?,
+        ];
+        let k = world.rig.cameras[0].intrinsics;
+        let canvas = Mat::new_rows_cols_with_default(
+            k.height as i32,
+            k.width as i32,
+            core::CV_8UC1,
+            Scalar::all(BACKGROUND),
+        )?;
+        Ok(Self {
+            world,
+            textures,
+            maps,
+            canvas,
+        })
+    }
+
+    /// The world being rendered.
+    pub fn world(&self) -> &SimWorld {
+        &self.world
+    }
+
+    /// Renders both cameras for encoder readings `q` into `left` and `right`
+    /// (mono8, width x height, no row padding); `seq` seeds the sensor noise.
+    /// `arm_faces` says which way the wrist turns the arm's card.
+    pub fn render(
+        &mut self,
+        q: &[f64],
+        arm_faces: Facing,
+        seq: u64,
+        left: &mut [u8],
+        right: &mut [u8],
+    ) -> Result<RenderTruth> {
+        let arm = self
+            .world
+            .rig
+            .arm
+            .as_ref()
+            .context("the simulated world has no arm")?;
+        let end_effector = arm.end_effector(q, &self.world.true_offsets)?;
+        let mut truth = RenderTruth {
+            end_effector: Some(end_effector),
+            ..RenderTruth::default()
+        };
+        let mut things: Vec<(u32, Vector3<f64>)> = vec![(self.world.arm_marker, end_effector)];
+        things.extend(self.world.fixed.iter().map(|f| (f.id, f.center)));
+        let side = MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM;
+        for (k, out) in [left, right].into_iter().enumerate() {
+            let cam = self.world.rig.cameras[k];
+            self.canvas
+                .set_to(&Scalar::all(BACKGROUND), &core::no_array())?;
+            let head = 0.5 * (self.world.rig.cameras[0].center + self.world.rig.cameras[1].center);
+            for &(id, center) in &things {
+                // Fixed objects face the mirror; the arm's card faces where the plan says.
+                let faces_mirror = self
+                    .world
+                    .mirror
+                    .is_some_and(|m| m.plane.signed_distance(&center) > 0.0)
+                    && (id != self.world.arm_marker || arm_faces == Facing::Mirror);
+                let texture = &self
+                    .textures
+                    .iter()
+                    .find(|t| t.0 == id)
+                    .expect("texture per id")
+                    .1;
+                if let Some(mirror) = self.world.mirror.filter(|_| faces_mirror) {
+                    let virtual_head = mirror.plane.reflect_point(&head);
+                    let corners = card_corners(&center, &virtual_head, side)
+                        .map(|c| mirror.plane.reflect_point(&c));
+                    if corners
+                        .iter()
+                        .all(|c| mirror.ray_hits_glass(&cam.center, c))
+                    {
+                        if let Some(px) = warp_card(&mut self.canvas, texture, &cam, &corners)? {
+                            truth.markers[k].push((id, true, px));
+                        }
+                    }
+                } else {
+                    let corners = card_corners(&center, &head, side);
+                    if let Some(px) = warp_card(&mut self.canvas, texture, &cam, &corners)? {
+                        truth.markers[k].push((id, false, px));
+                    }
+                }
+            }
+            let intr = cam.intrinsics;
+            let mut dst =
+                Mat::new_rows_cols_with_data_mut(intr.height as i32, intr.width as i32, out)?;
+            imgproc::remap(
+                &self.canvas,
+                &mut dst,
+                &self.maps[k].0,
+                &self.maps[k].1,
+                imgproc::INTER_LINEAR,
+                core::BORDER_REPLICATE,
+                Scalar::default(),
+            )?;
+            degrade(
+                &mut dst,
+                self.world.noise,
+                seq.wrapping_mul(2).wrapping_add(k as u64),
+            )?;
+        }
+        // Corner truth in distorted pixels (markers' inner black square).
+        for k in 0..2 {
+            let cam = self.world.rig.cameras[k];
+            for m in truth.markers[k].iter_mut() {
+                let center = things
+                    .iter()
+                    .find(|t| t.0 == m.0)
+                    .map(|t| t.1)
+                    .unwrap_or_default();
+                let corners = if m.1 {
+                    let mirror = self.world.mirror.expect("mirrored implies a mirror");
+                    let vh = mirror.plane.reflect_point(
+                        &(0.5
+                            * (self.world.rig.cameras[0].center
+                                + self.world.rig.cameras[1].center)),
+                    );
+                    card_corners(&center, &vh, MARKER_SIZE_MM)
+                        .map(|c| mirror.plane.reflect_point(&c))
+                } else {
+                    let head =
+                        0.5 * (self.world.rig.cameras[0].center + self.world.rig.cameras[1].center);
+                    card_corners(&center, &head, MARKER_SIZE_MM)
+                };
+                for (i, c) in corners.iter().enumerate() {
+                    m.2[i] = cam.project(c)?;
+                }
+            }
+        }
+        Ok(truth)
+    }
+}
+
+/// Warps a card texture onto the ideal canvas at the projections of its
+/// corners; returns the corners (distorted px) if the card is in view.
+fn warp_card(
+    canvas: &mut Mat,
+    texture: &Mat,
+    cam: &Camera,
+    corners: &[Vector3<f64>; 4],
+) -> Result<Option<[Vector2<f64>; 4]>> {
+    let k = cam.intrinsics.k();
+    let mut ideal = Vector::<Point2f>::new();
+    let mut distorted = [Vector2::zeros(); 4];
+    for (i, c) in corners.iter().enumerate() {
+        if cam.depth(c) <= 1.0 {
+            return Ok(None);
+        }
+        let xy = cam.normalized(c)?;
+        let p = k * Vector3::new(xy.x, xy.y, 1.0);
+        ideal.push(Point2f::new(p.x as f32, p.y as f32));
+        distorted[i] = cam.project(c)?;
+    }
+    let inside = distorted.iter().any(|p| cam.intrinsics.contains(p, 0.0));
+    if !inside {
+        return Ok(None);
+    }
+    // Shrink the texture (area averaging) to about the card's size on screen:
+    // bilinear sampling of a much larger texture aliases the edges.
+    let on_screen = (0..4)
+        .map(|i| {
+            let (a, b) = (
+                ideal.get(i).unwrap_or_default(),
+                ideal.get((i + 1) % 4).unwrap_or_default(),
+            );
+            f64::from(((a.x - b.x).powi(2) + (a.y - b.y).powi(2)).sqrt())
+        })
+        .fold(0.0, f64::max);
+    let scale = (on_screen / f64::from(texture.cols())).min(1.0);
+    let mut shrunk = Mat::default();
+    let texture = if scale < 0.9 {
+        let side = ((f64::from(texture.cols()) * scale).round() as i32).max(8);
+        imgproc::resize(
+            texture,
+            &mut shrunk,
+            Size::new(side, side),
+            0.0,
+            0.0,
+            imgproc::INTER_AREA,
+        )?;
+        &shrunk
+    } else {
+        texture
+    };
+    // Texel centres sit at integer coordinates, so the texture's outer edge is at -0.5.
+    let (w, h) = (texture.cols() as f32 - 0.5, texture.rows() as f32 - 0.5);
+    let source = Vector::<Point2f>::from_iter([
+        Point2f::new(-0.5, -0.5),
+        Point2f::new(w, -0.5),
+        Point2f::new(w, h),
+        Point2f::new(-0.5, h),
+    ]);
+    let homography = imgproc::get_perspective_transform(&source, &ideal, core::DECOMP_LU)?;
+    let size = Size::new(canvas.cols(), canvas.rows());
+    let mut out = canvas.clone();
+    imgproc::warp_perspective(
+        texture,
+        &mut out,
+        &homography,
+        size,
+        imgproc::INTER_LINEAR,
+        core::BORDER_TRANSPARENT,
+        Scalar::default(),
+    )?;
+    *canvas = out;
+    Ok(Some(distorted))
+}
+
+/// For every output (distorted) pixel, the ideal pixel it shows.
+fn distortion_maps(cam: &Camera) -> Result<(Mat, Mat)> {
+    let intr = cam.intrinsics;
+    let (w, h) = (intr.width as i32, intr.height as i32);
+    let mut map_x = Mat::new_rows_cols_with_default(h, w, core::CV_32FC1, Scalar::all(-1.0))?;
+    let mut map_y = Mat::new_rows_cols_with_default(h, w, core::CV_32FC1, Scalar::all(-1.0))?;
+    let k = intr.k();
+    for v in 0..h {
+        for u in 0..w {
+            if let Ok(xy) = intr.undistort_pixel(&Vector2::new(f64::from(u), f64::from(v))) {
+                let p = k * Vector3::new(xy.x, xy.y, 1.0);
+                *map_x.at_2d_mut::<f32>(v, u)? = p.x as f32;
+                *map_y.at_2d_mut::<f32>(v, u)? = p.y as f32;
+            }
+        }
+    }
+    Ok((map_x, map_y))
+}
+
+/// Blur and additive Gaussian noise, in place, seeded.
+fn degrade<M: core::ToInputArray + core::ToOutputArray + MatTraitConst>(
+    image: &mut M,
+    noise: ImageNoise,
+    seed: u64,
+) -> Result<()> {
+    if noise.blur_sigma > 0.0 {
+        let mut blurred = Mat::default();
+        imgproc::gaussian_blur(
+            &*image,
+            &mut blurred,
+            Size::new(0, 0),
+            noise.blur_sigma,
+            0.0,
+            core::BORDER_REPLICATE,
+        )?;
+        blurred.copy_to(image)?;
+    }
+    if noise.noise_sigma > 0.0 {
+        let mut n = Mat::new_rows_cols_with_default(
+            image.rows(),
+            image.cols(),
+            core::CV_16SC1,
+            Scalar::default(),
+        )?;
+        core::set_rng_seed((seed % i32::MAX as u64) as i32)?;
+        core::randn(&mut n, &Scalar::all(0.0), &Scalar::all(noise.noise_sigma))?;
+        let mut sum = Mat::default();
+        core::add(&*image, &n, &mut sum, &core::no_array(), core::CV_8U)?;
+        sum.copy_to(image)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,191 @@
+//! Real footage: directories of image pairs, video files, camera devices.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use opencv::prelude::*;
+use opencv::{core, imgcodecs, imgproc, videoio};
+
+/// A source of stereo mono8 image pairs.
+pub trait StereoSource {
+    /// Width and height of each image.
+    fn size(&self) -> (u32, u32);
+    /// Reads the next pair into `left` and `right` (width x height bytes each);
+    /// `false` at the end.
+    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool>;
+}
+
+/// Copies a decoded image (any depth/channels) as mono8 into `out`.
+fn to_mono_into(image: &Mat, out: &mut [u8], what: &str) -> Result<()> {
+    let mut grey = Mat::default();
+    match image.channels() {
+        1 => grey = image.clone(),
+        3 => imgproc::cvt_color(image, &mut grey, imgproc::COLOR_BGR2GRAY, 0)?,
+        4 => imgproc::cvt_color(image, &mut grey, imgproc::COLOR_BGRA2GRAY, 0)?,
+        c => bail!("{what}: {c} channels not supported"),
+    }
+    let bytes = grey.data_bytes()?;
+    if bytes.len() != out.len() {
+        bail!(
+            "{what}: image has {} bytes, expected {}",
+            bytes.len(),
+            out.len()
+        );
+    }
+    out.copy_from_slice(bytes);
+    Ok(())
+}
+
+/// Image pairs from a directory: `*left*`/`*right*` files sorted by name
+/// (e.g. `0001_left.png`, `0001_right.png`).
+pub struct ImagePairs {
+    pairs: Vec<(PathBuf, PathBuf)>,
+    next: usize,
+    size: (u32, u32),
+}
+
+impl ImagePairs {
+    /// Lists the pairs of `dir` and reads the first to learn the size.
+    pub fn open(dir: &Path) -> Result<Self> {
+        let mut lefts = Vec::new();
+        for entry in
+            std::fs::read_dir(dir).with_context(|| format!("{}: cannot list", dir.display()))?
+        {
+            let path = entry?.path();
+            let name = path
+                .file_name()
+                .and_then(|n| n.to_str())
+                .unwrap_or("")
+                .to_string();
+            if name.contains("left") {
+                let right = path.with_file_name(name.replacen("left", "right", 1));
+                if !right.exists() {
+                    bail!(
+                        "{}: no matching right image {}",
+                        path.display(),
+                        right.display()
+                    );
+                }
+                lefts.push((path, right));
+            }
+        }
+        lefts.sort();
+        let first = lefts
+            .first()
+            .with_context(|| format!("{}: no `*left*` images", dir.display()))?;
+        let img = imgcodecs::imread(&first.0, imgcodecs::IMREAD_GRAYSCALE)?;
+        if img.empty() {
+            bail!("{}: cannot decode", first.0.display());
+        }
+        Ok(Self {
+            size: (img.cols() as u32, img.rows() as u32),
+            pairs: lefts,
+            next: 0,
+        })
+    }
+}
+
+impl StereoSource for ImagePairs {
+    fn size(&self) -> (u32, u32) {
+        self.size
+    }
+
+    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool> {
+        let Some((l, r)) = self.pairs.get(self.next).cloned() else {
+            return Ok(false);
+        };
+        self.next += 1;
+        for (path, out) in [(&l, left), (&r, right)] {
+            let img = imgcodecs::imread(path, imgcodecs::IMREAD_UNCHANGED)?;
+            if img.empty() {
+                bail!("{}: cannot decode", path.display());
+            }
+            if (img.cols() as u32, img.rows() as u32) != self.size {
+                bail!(
+                    "{}: size {}x{} differs from the first pair's",
+                    path.display(),
+                    img.cols(),
+                    img.rows()
+                );
+            }
+            to_mono_into(&img, out, &path.display().to_string())?;
+        }
+        Ok(true)
+    }
+}
+
+/// One side-by-side capture (a video file or a device) split into left and right halves,
+/// or two captures (two devices).
+pub struct Captures {
+    captures: Vec<videoio::VideoCapture>,
+    size: (u32, u32),
+    name: String,
+}
+
+impl Captures {
+    /// Opens a video file or device path (`/dev/video0`) holding side-by-side stereo.
+    pub fn side_by_side(source: &str) -> Result<Self> {
+        let cap = videoio::VideoCapture::from_file(source, videoio::CAP_ANY)?;
+        if !cap.is_opened()? {
+            bail!("{source}: cannot open");
+        }
+        let (w, h) = (
+            cap.get(videoio::CAP_PROP_FRAME_WIDTH)? as u32,
+            cap.get(videoio::CAP_PROP_FRAME_HEIGHT)? as u32,
+        );
+        Ok(Self {
+            captures: vec![cap],
+            size: (w / 2, h),
+            name: source.into(),
+        })
+    }
+
+    /// Opens two devices or files, left then right.
+    pub fn pair(left: &str, right: &str) -> Result<Self> {
+        let mut captures = Vec::new();
+        for s in [left, right] {
+            let cap = videoio::VideoCapture::from_file(s, videoio::CAP_ANY)?;
+            if !cap.is_opened()? {
+                bail!("{s}: cannot open");
+            }
+            captures.push(cap);
+        }
+        let (w, h) = (
+            captures[0].get(videoio::CAP_PROP_FRAME_WIDTH)? as u32,
+            captures[0].get(videoio::CAP_PROP_FRAME_HEIGHT)? as u32,
+        );
+        Ok(Self {
+            captures,
+            size: (w, h),
+            name: format!("{left} + {right}"),
+        })
+    }
+}
+
+impl StereoSource for Captures {
+    fn size(&self) -> (u32, u32) {
+        self.size
+    }
+
+    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool> {
+        let mut frames = Vec::new();
+        for cap in &mut self.captures {
+            let mut m = Mat::default();
+            if !cap.read(&mut m)? || m.empty() {
+                return Ok(false);
+            }
+            frames.push(m);
+        }
+        if frames.len() == 1 {
+            let (w, h) = (self.size.0 as i32, self.size.1 as i32);
+            let l = Mat::roi(&frames[0], core::Rect::new(0, 0, w, h))?.try_clone()?;
+            let r = Mat::roi(&frames[0], core::Rect::new(w, 0, w, h))?.try_clone()?;
+            to_mono_into(&l, left, &self.name)?;
+            to_mono_into(&r, right, &self.name)?;
+        } else {
+            to_mono_into(&frames[0], left, &self.name)?;
+            to_mono_into(&frames[1], right, &self.name)?;
+        }
+        Ok(true)
+    }
+}
