@@ -80,15 +80,19 @@ impl SimWorld {
                 scene.mirrors.len() - 1
             )
         })?;
+        let fixed = hidden_object_spot(&scene.rig, &glass)
+            .map(|center| FixedMarker {
+                id: HIDDEN_OBJECT_ID,
+                center,
+            })
+            .into_iter()
+            .collect();
         Ok(Self {
             rig: scene.rig,
             mirror: Some(glass),
             true_offsets: nico_noise().joint_offsets,
             arm_marker: ARM_MARKER_ID,
-            fixed: vec![FixedMarker {
-                id: HIDDEN_OBJECT_ID,
-                center: Vector3::new(-40.0, 40.0, -60.0),
-            }],
+            fixed,
             noise: ImageNoise {
                 blur_sigma: 0.6,
                 noise_sigma: 2.0,
@@ -104,6 +108,36 @@ pub enum Facing {
     Mirror,
     /// Towards the head, to be read directly.
     Head,
+}
+
+/// A spot behind the head (never in direct view) whose card reflection both
+/// cameras see whole through the glass: the first of a fixed grid, nearest
+/// the head first.
+fn hidden_object_spot(rig: &Rig, mirror: &Mirror) -> Option<Vector3<f64>> {
+    let mut candidates = Vec::new();
+    for z in [-60.0, -100.0, -140.0] {
+        for y in (-4..=8).map(|i| f64::from(i) * 25.0) {
+            for x in (-8..=8).map(|i| f64::from(i) * 25.0) {
+                candidates.push(Vector3::new(x, y, z));
+            }
+        }
+    }
+    candidates.sort_by(|a, b| a.norm().total_cmp(&b.norm()));
+    let side = MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM;
+    let head = 0.5 * (rig.cameras[0].center + rig.cameras[1].center);
+    candidates.into_iter().find(|c| {
+        let corners = card_corners(c, &mirror.plane.reflect_point(&head), side)
+            .map(|p| mirror.plane.reflect_point(&p));
+        rig.cameras.iter().all(|cam| {
+            corners.iter().all(|v| {
+                mirror.ray_hits_glass(&cam.center, v)
+                    && cam.depth(v) > 0.0
+                    && cam
+                        .project(v)
+                        .is_ok_and(|px| cam.intrinsics.contains(&px, 20.0))
+            })
+        })
+    })
 }
 
 /// Where things really were in a rendered frame (for tests).
@@ -223,7 +257,18 @@ impl Renderer {
             self.canvas
                 .set_to(&Scalar::all(BACKGROUND), &core::no_array())?;
             let head = 0.5 * (self.world.rig.cameras[0].center + self.world.rig.cameras[1].center);
-            for &(id, center) in &things {
+            // Painter's order: what the camera sees farthest (a reflection is as
+            // far as its virtual position) is drawn first.
+            let apparent_depth = |id: u32, c: &Vector3<f64>| {
+                let reflected = self.world.mirror.filter(|m| {
+                    m.plane.signed_distance(c) > 0.0
+                        && (id != self.world.arm_marker || arm_faces == Facing::Mirror)
+                });
+                cam.depth(&reflected.map_or(*c, |m| m.plane.reflect_point(c)))
+            };
+            let mut order = things.clone();
+            order.sort_by(|a, b| apparent_depth(b.0, &b.1).total_cmp(&apparent_depth(a.0, &a.1)));
+            for &(id, center) in &order {
                 // Fixed objects face the mirror; the arm's card faces where the plan says.
                 let faces_mirror = self
                     .world

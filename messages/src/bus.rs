@@ -49,6 +49,8 @@ impl Bus {
                 message: format!("`{prefix}` is empty or has spaces"),
             });
         }
+        // iceoryx2 warns that no config file exists; its defaults are what we use.
+        set_log_level_from_env_or(LogLevel::Error);
         let node_name = NodeName::new(name).map_err(|e| err("node name")(&e))?;
         let node = NodeBuilder::new()
             .name(&node_name)
@@ -207,6 +209,14 @@ impl Bus {
     ) -> Result<usize, BusError> {
         Ok(self
             .small_service::<T>(topic)?
+            .dynamic_config()
+            .number_of_subscribers())
+    }
+
+    /// Number of subscribers currently attached to the frames `topic`.
+    pub fn frame_subscriber_count(&self, topic: &str) -> Result<usize, BusError> {
+        Ok(self
+            .frame_service(topic)?
             .dynamic_config()
             .number_of_subscribers())
     }

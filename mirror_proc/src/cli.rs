@@ -77,6 +77,28 @@ enum Command {
         #[arg(long, default_value_t = 100)]
         direct: usize,
     },
+    /// The live stage: pair joint states with detections, calibrate as samples
+    /// arrive, publish calibrations, predictions and located objects.
+    Run {
+        /// Service prefix of the pipeline.
+        #[arg(long, default_value = "default")]
+        prefix: String,
+        /// Rig file (TOML).
+        #[arg(long)]
+        rig: PathBuf,
+        /// paper | joint | joint+kinematics.
+        #[arg(long, default_value = "joint+kinematics")]
+        method: String,
+        /// Training samples before the first calibration.
+        #[arg(long, default_value_t = 8)]
+        min_train: usize,
+        /// Wait after a pose settles before pairing a frame with it, ms.
+        #[arg(long, default_value_t = 30)]
+        settle_ms: i64,
+        /// Write the final report (JSON) here when the pose plan ends.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
     /// Run the paper's experiment on the simulated robot and print its table.
     Experiment {
         /// Scene preset.
@@ -244,6 +266,32 @@ fn run(cli: Cli) -> Result<()> {
                 "wrote {}/{{rig.toml, train.csv ({train} mirror poses), test.csv ({test} mirror + {direct} direct poses), truth.json}}",
                 out.display()
             );
+        }
+        Command::Run {
+            prefix,
+            rig,
+            method,
+            min_train,
+            settle_ms,
+            report,
+        } => {
+            let method: Method = method
+                .parse()
+                .map_err(|e: String| anyhow!("--method: {e}"))?;
+            let rig_model = read_rig(&rig)?;
+            let config = crate::live::LiveConfig {
+                method,
+                min_train,
+                settle_margin_ns: settle_ms * 1_000_000,
+                ..Default::default()
+            };
+            let result = crate::live_loop::run(&prefix, rig_model, config)?;
+            let text = serde_json::to_string_pretty(&result)? + "\n";
+            match report {
+                Some(path) => std::fs::write(&path, text)
+                    .with_context(|| format!("{}: cannot write", path.display()))?,
+                None => print!("{text}"),
+            }
         }
         Command::Experiment {
             preset: Preset::Nico,

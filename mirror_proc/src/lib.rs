@@ -18,4 +18,6 @@ pub mod calibrate;
 pub mod cli;
 pub mod evaluate;
 pub mod experiment;
+pub mod live;
+pub mod live_loop;
 pub mod plot;

@@ -1,9 +1,166 @@
-//! `tracker_proc`: a stage of the live pipeline. Not implemented yet; the offline
-//! tools live in `mirror_proc`.
+//! `tracker_proc`: finds ArUco markers, normal and mirror-reversed, in
+//! stereo frames (`run`) or in image files (`detect`).
 
-fn main() -> std::process::ExitCode {
-    eprintln!(
-        "tracker_proc: this live-pipeline stage is not implemented yet; use mirror_proc for the offline tools"
-    );
-    std::process::ExitCode::from(2)
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Result, bail};
+use clap::{Parser, Subcommand};
+use messages::{Bus, CameraMarkers, StereoDetections, encoding, topics};
+use opencv::core::Mat;
+use opencv::prelude::*;
+use tracker_proc::Detector;
+
+/// Track ArUco markers, including markers seen in a mirror.
+#[derive(Debug, Parser)]
+#[command(version, about)]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Subscribe to stereo frames and publish detections.
+    Run {
+        /// Service prefix of the pipeline.
+        #[arg(long, default_value = "default")]
+        prefix: String,
+        /// Only find markers as printed (no mirror-reversed ones).
+        #[arg(long)]
+        no_mirrored: bool,
+    },
+    /// Print each image's detections as JSON lines (id, mirrored, corners, center).
+    Detect {
+        /// Image files.
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+    },
+}
+
+fn detect_files(images: &[PathBuf]) -> Result<()> {
+    let mut detector = Detector::new(true)?;
+    for path in images {
+        let image = opencv::imgcodecs::imread(
+            &path.to_string_lossy().to_string(),
+            opencv::imgcodecs::IMREAD_GRAYSCALE,
+        )?;
+        if image.empty() {
+            bail!("{}: cannot read or decode the image", path.display());
+        }
+        for m in detector.detect(&image)? {
+            let corners: Vec<[f64; 2]> = m.corners.chunks(2).map(|c| [c[0], c[1]]).collect();
+            let line = serde_json::json!({
+                "image": path.display().to_string(),
+                "id": m.id,
+                "mirrored": m.mirrored == 1,
+                "corners": corners,
+                "center": m.center,
+            });
+            println!("{line}");
+        }
+    }
+    Ok(())
+}
+
+fn run(prefix: &str, mirrored: bool) -> Result<()> {
+    let mut detector = Detector::new(mirrored)?;
+    let bus = Bus::new(prefix, "tracker_proc")?;
+    let frames = bus.frame_subscriber(topics::FRAMES)?;
+    let publisher = bus.publisher::<StereoDetections>(topics::DETECTIONS)?;
+    let (mut count, mut rejected) = (0u64, 0u64);
+    let mut last_stamp = i64::MIN;
+    let mut failure = None;
+    tracing::info!(mirrored, "tracking");
+    bus.wake()?.run(&[frames.listener()], None, || {
+        loop {
+            let step = frames.receive_with(|header, payload| -> Result<Option<StereoDetections>> {
+                let _span = tracing::trace_span!("tracker_step", seq = header.seq).entered();
+                if let Err(why) = header.validate(payload.len()) {
+                    tracing::warn!(seq = header.seq, why, "dropping a malformed frame");
+                    return Ok(None);
+                }
+                if header.encoding != encoding::MONO8 && header.encoding != encoding::BGR8 {
+                    return Ok(None);
+                }
+                if header.stamp_ns < last_stamp {
+                    tracing::warn!(
+                        seq = header.seq,
+                        "dropping a frame whose stamp goes backwards"
+                    );
+                    return Ok(None);
+                }
+                last_stamp = header.stamp_ns;
+                let channels = header.bytes_per_pixel().unwrap_or(1) as i32;
+                let mut out = StereoDetections {
+                    seq: header.seq,
+                    stamp_ns: header.stamp_ns,
+                    ..Default::default()
+                };
+                for (k, image) in payload.chunks_exact(header.image_len()).enumerate().take(2) {
+                    // A Mat header over the shared-memory image: no copy.
+                    let flat = Mat::new_rows_cols_with_data(
+                        header.height as i32,
+                        header.stride as i32,
+                        image,
+                    )?;
+                    let view = flat.reshape(channels, header.height as i32)?;
+                    let roi = Mat::roi(
+                        &view,
+                        opencv::core::Rect::new(0, 0, header.width as i32, header.height as i32),
+                    )?;
+                    let mut markers = CameraMarkers::default();
+                    for m in detector.detect(&roi)? {
+                        markers.push(m);
+                    }
+                    out.cameras[k] = markers;
+                }
+                Ok(Some(out))
+            });
+            match step {
+                Ok(Some(Ok(Some(det)))) => {
+                    if let Err(e) = publisher.send(det) {
+                        failure = Some(e.into());
+                        return false;
+                    }
+                    count += 1;
+                }
+                Ok(Some(Ok(None))) => rejected += 1,
+                Ok(Some(Err(e))) => {
+                    failure = Some(e);
+                    return false;
+                }
+                Ok(None) => return true,
+                Err(e) => {
+                    failure = Some(e.into());
+                    return false;
+                }
+            }
+        }
+    })?;
+    tracing::info!(frames = count, rejected, "tracker stopped");
+    failure.map_or(Ok(()), Err)
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match Args::parse().command {
+        Command::Run {
+            prefix,
+            no_mirrored,
+        } => run(&prefix, !no_mirrored),
+        Command::Detect { images } => detect_files(&images),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("tracker_proc: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }

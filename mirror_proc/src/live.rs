@@ -1,0 +1,434 @@
+//! The live mirror stage as a pure state machine: messages in, messages out.
+//!
+//! Joint states and detections arrive on two topics in any interleaving;
+//! [`Live`] merges them strictly by stamp (an event is processed only once
+//! the other stream has moved past it, or has ended), so the same input
+//! messages always give the same outputs, whatever the timing.
+//!
+//! Pairing: a pose's window opens at the first `SETTLED` joint state of the
+//! pose plus a settle margin and closes at the next state of another pose or
+//! phase. The first stereo detection inside the window in which the arm's
+//! marker is found in both cameras (mirror-reversed for mirror poses, as
+//! printed for direct ones) makes the pose's sample. Each new training sample
+//! triggers a calibration once enough exist; test samples get predictions
+//! through the newest calibration; other markers seen mirror-reversed in
+//! both cameras are located through the mirror cameras.
+
+use std::collections::{BTreeMap, VecDeque};
+
+use formats::evaluation::Evaluation;
+use geometry::triangulate::triangulate;
+use geometry::{Rig, Sample};
+use messages::{
+    CalibrationMsg, CameraPose, JointState, LocatedObject, MAX_JOINTS, MirrorSample, Prediction,
+    StereoDetections, phase, role,
+};
+use nalgebra::Vector2;
+use serde::{Deserialize, Serialize};
+
+use crate::calibrate::{Calibration, Method, calibrate};
+use crate::evaluate::evaluate;
+
+/// Settings of the live stage.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LiveConfig {
+    /// Calibration method.
+    pub method: Method,
+    /// ArUco id of the arm's marker.
+    pub arm_marker: u32,
+    /// Training samples needed before the first calibration.
+    pub min_train: usize,
+    /// Time after a pose settles before a frame may be paired with it, ns.
+    pub settle_margin_ns: i64,
+}
+
+impl Default for LiveConfig {
+    fn default() -> Self {
+        Self {
+            method: Method::JointKinematics,
+            arm_marker: 0,
+            min_train: 8,
+            settle_margin_ns: 30_000_000,
+        }
+    }
+}
+
+/// What the stage publishes.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Output {
+    /// A new paired sample.
+    Sample(MirrorSample),
+    /// A new calibration.
+    Calibration(CalibrationMsg),
+    /// A test sample's prediction.
+    Prediction(Prediction),
+    /// A marker located through the mirror.
+    Located(LocatedObject),
+}
+
+/// Counters for the report.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Counters {
+    /// Joint states processed.
+    pub joint_states: u64,
+    /// Detections processed.
+    pub detections: u64,
+    /// Poses that got a sample.
+    pub paired: u64,
+    /// Poses whose window closed without a usable detection.
+    pub missed: u64,
+    /// Messages dropped as malformed (non-finite, stamps going backwards).
+    pub rejected: u64,
+    /// Calibrations that failed (too few or degenerate samples so far).
+    pub calibration_failures: u64,
+}
+
+/// The final account of a run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LiveReport {
+    /// Method used.
+    pub method: String,
+    /// Training samples.
+    pub train_samples: usize,
+    /// Test samples (mirror and direct).
+    pub test_samples: usize,
+    /// The paper's metrics of the final calibration on the test samples.
+    pub evaluation: Option<Evaluation>,
+    /// The final calibration (file form).
+    pub calibration: Option<formats::calibration::CalibrationFile>,
+    /// Last position of each located object: id -> [x, y, z] mm.
+    pub located: BTreeMap<u32, [f64; 3]>,
+    /// Why the last calibration attempt failed, if it did.
+    pub last_error: Option<String>,
+    /// Counters.
+    pub counters: Counters,
+}
+
+#[derive(Debug, Clone)]
+struct Window {
+    state: JointState,
+    opens_ns: i64,
+    done: bool,
+}
+
+/// The live stage's state.
+pub struct Live {
+    rig: Rig,
+    config: LiveConfig,
+    joints: VecDeque<JointState>,
+    detections: VecDeque<StereoDetections>,
+    joints_ended: bool,
+    last_joint_stamp: i64,
+    last_detection_stamp: i64,
+    window: Option<Window>,
+    train: Vec<MirrorSample>,
+    tests: Vec<MirrorSample>,
+    calibration: Option<Calibration>,
+    revision: u64,
+    located: BTreeMap<u32, [f64; 3]>,
+    last_error: Option<String>,
+    counters: Counters,
+    finished: bool,
+}
+
+impl Live {
+    /// A stage for `rig`.
+    pub fn new(rig: Rig, config: LiveConfig) -> Self {
+        Self {
+            rig,
+            config,
+            joints: VecDeque::new(),
+            detections: VecDeque::new(),
+            joints_ended: false,
+            last_joint_stamp: i64::MIN,
+            last_detection_stamp: i64::MIN,
+            window: None,
+            train: Vec::new(),
+            tests: Vec::new(),
+            calibration: None,
+            revision: 0,
+            located: BTreeMap::new(),
+            last_error: None,
+            counters: Counters::default(),
+            finished: false,
+        }
+    }
+
+    /// Whether the pose plan has ended and everything before its end is processed.
+    pub fn finished(&self) -> bool {
+        self.finished
+    }
+
+    /// Takes a joint state; returns what became ready.
+    pub fn push_joint_state(&mut self, js: JointState) -> Vec<Output> {
+        let finite = js
+            .joints()
+            .iter()
+            .chain(js.model_point.iter())
+            .all(|v| v.is_finite());
+        if !finite || js.stamp_ns < self.last_joint_stamp || js.dof as usize > MAX_JOINTS {
+            self.counters.rejected += 1;
+            return Vec::new();
+        }
+        self.last_joint_stamp = js.stamp_ns;
+        if js.phase == phase::DONE {
+            self.joints_ended = true;
+        }
+        self.joints.push_back(js);
+        self.drain()
+    }
+
+    /// Takes a stereo detection; returns what became ready.
+    pub fn push_detections(&mut self, d: StereoDetections) -> Vec<Output> {
+        let finite = d.cameras.iter().flat_map(|c| c.iter()).all(|m| {
+            m.center
+                .iter()
+                .chain(m.corners.iter())
+                .all(|v| v.is_finite())
+        });
+        let counts_ok = d
+            .cameras
+            .iter()
+            .all(|c| c.count as usize <= messages::MAX_MARKERS);
+        if !finite || !counts_ok || d.stamp_ns < self.last_detection_stamp {
+            self.counters.rejected += 1;
+            return Vec::new();
+        }
+        self.last_detection_stamp = d.stamp_ns;
+        self.detections.push_back(d);
+        self.drain()
+    }
+
+    /// Processes queued events in stamp order as far as both streams allow.
+    fn drain(&mut self) -> Vec<Output> {
+        let mut out = Vec::new();
+        loop {
+            if self.finished {
+                return out;
+            }
+            let take_joint = match (self.joints.front(), self.detections.front()) {
+                (Some(j), Some(d)) => j.stamp_ns <= d.stamp_ns,
+                // A joint state is safe once detections have passed it.
+                (Some(j), None) => self.last_detection_stamp >= j.stamp_ns,
+                // A detection is safe once joint states have passed it, or they ended.
+                (None, Some(d)) => self.joints_ended || self.last_joint_stamp > d.stamp_ns,
+                (None, None) => return out,
+            };
+            if take_joint {
+                let Some(js) = self.joints.pop_front() else {
+                    return out;
+                };
+                self.on_joint_state(js);
+            } else {
+                let Some(d) = self.detections.pop_front() else {
+                    return out;
+                };
+                self.on_detections(&d, &mut out);
+            }
+        }
+    }
+
+    fn on_joint_state(&mut self, js: JointState) {
+        self.counters.joint_states += 1;
+        let same_window = self
+            .window
+            .as_ref()
+            .is_some_and(|w| w.state.pose == js.pose && js.phase == phase::SETTLED);
+        if same_window {
+            return;
+        }
+        if let Some(w) = self.window.take()
+            && !w.done
+        {
+            self.counters.missed += 1;
+        }
+        match js.phase {
+            phase::SETTLED => {
+                self.window = Some(Window {
+                    opens_ns: js.stamp_ns + self.config.settle_margin_ns,
+                    state: js,
+                    done: false,
+                });
+            }
+            phase::DONE => self.finished = true,
+            _ => {}
+        }
+    }
+
+    fn on_detections(&mut self, d: &StereoDetections, out: &mut Vec<Output>) {
+        self.counters.detections += 1;
+        if let Some(w) = self
+            .window
+            .as_mut()
+            .filter(|w| !w.done && d.stamp_ns >= w.opens_ns)
+        {
+            let mirrored = w.state.role != role::DIRECT;
+            let found = [
+                d.cameras[0].find(self.config.arm_marker, mirrored),
+                d.cameras[1].find(self.config.arm_marker, mirrored),
+            ];
+            if let [Some(l), Some(r)] = found {
+                w.done = true;
+                let state = w.state;
+                let pixels = [l.center, r.center];
+                self.add_sample(state, d.stamp_ns, pixels, out);
+            }
+        }
+        self.locate_objects(d, out);
+    }
+
+    fn add_sample(
+        &mut self,
+        state: JointState,
+        stamp_ns: i64,
+        pixels: [[f64; 2]; 2],
+        out: &mut Vec<Output>,
+    ) {
+        let triangulated = triangulate(self.rig.camera_refs(), pixels.map(Vector2::from))
+            .map_or([f64::NAN; 3], Into::into);
+        let sample = MirrorSample {
+            pose: state.pose,
+            stamp_ns,
+            role: state.role,
+            dof: state.dof,
+            q: state.q,
+            model_point: state.model_point,
+            pixels,
+            triangulated,
+        };
+        self.counters.paired += 1;
+        out.push(Output::Sample(sample));
+        if state.role == role::TRAIN {
+            self.train.push(sample);
+            if self.train.len() >= self.config.min_train {
+                self.recalibrate(stamp_ns, out);
+            }
+        } else {
+            self.tests.push(sample);
+            self.predict(&sample, out);
+        }
+    }
+
+    fn recalibrate(&mut self, stamp_ns: i64, out: &mut Vec<Output>) {
+        let samples: Vec<Sample> = self.train.iter().map(MirrorSample::to_sample).collect();
+        match calibrate(&self.rig, &samples, self.config.method) {
+            Ok(cal) => {
+                self.revision += 1;
+                self.last_error = None;
+                let mut msg = CalibrationMsg {
+                    stamp_ns,
+                    revision: self.revision,
+                    method: Method::ALL
+                        .iter()
+                        .position(|m| *m == cal.method)
+                        .unwrap_or(0) as u32,
+                    samples: cal.samples as u32,
+                    train_rms_px: cal.train_rms_px,
+                    ..Default::default()
+                };
+                if let Some(p) = cal.plane {
+                    msg.has_plane = 1;
+                    msg.plane = [p.normal.x, p.normal.y, p.normal.z, p.distance];
+                }
+                msg.cameras = [
+                    CameraPose::from_camera(&cal.mirror_cameras[0]),
+                    CameraPose::from_camera(&cal.mirror_cameras[1]),
+                ];
+                if let Some(o) = &cal.joint_offsets {
+                    msg.dof = o.len().min(MAX_JOINTS) as u32;
+                    msg.joint_offsets[..msg.dof as usize].copy_from_slice(&o[..msg.dof as usize]);
+                }
+                self.calibration = Some(cal);
+                out.push(Output::Calibration(msg));
+            }
+            Err(e) => {
+                // Keep collecting: a later sample may make the problem well posed.
+                self.counters.calibration_failures += 1;
+                self.last_error = Some(e.to_string());
+            }
+        }
+    }
+
+    fn predict(&self, sample: &MirrorSample, out: &mut Vec<Output>) {
+        let Some(cal) = &self.calibration else { return };
+        let s = sample.to_sample();
+        let direct = sample.role == role::DIRECT;
+        let cams = if direct {
+            self.rig.cameras
+        } else {
+            cal.mirror_cameras
+        };
+        let Ok(model) = crate::calibrate::model_point(&self.rig, &s, cal.joint_offsets.as_deref())
+        else {
+            return;
+        };
+        let refs = [&cams[0], &cams[1]];
+        let (Ok(reconstructed), Ok(l), Ok(r)) = (
+            triangulate(refs, s.pixels),
+            cams[0].project(&model),
+            cams[1].project(&model),
+        ) else {
+            return;
+        };
+        out.push(Output::Prediction(Prediction {
+            pose: sample.pose,
+            stamp_ns: sample.stamp_ns,
+            revision: self.revision,
+            role: sample.role,
+            reserved: 0,
+            model_point: model.into(),
+            reconstructed: reconstructed.into(),
+            predicted_pixels: [l.into(), r.into()],
+            error_mm: (reconstructed - model).norm(),
+            error_px: 0.5 * ((l - s.pixels[0]).norm() + (r - s.pixels[1]).norm()),
+        }));
+    }
+
+    fn locate_objects(&mut self, d: &StereoDetections, out: &mut Vec<Output>) {
+        let Some(cal) = &self.calibration else { return };
+        for m in d.cameras[0]
+            .iter()
+            .filter(|m| m.mirrored == 1 && m.id != self.config.arm_marker)
+        {
+            let Some(r) = d.cameras[1].find(m.id, true) else {
+                continue;
+            };
+            let refs = [&cal.mirror_cameras[0], &cal.mirror_cameras[1]];
+            if let Ok(p) = triangulate(refs, [Vector2::from(m.center), Vector2::from(r.center)]) {
+                self.located.insert(m.id, p.into());
+                out.push(Output::Located(LocatedObject {
+                    stamp_ns: d.stamp_ns,
+                    revision: self.revision,
+                    id: m.id,
+                    reserved: 0,
+                    position: p.into(),
+                }));
+            }
+        }
+    }
+
+    /// The final report: the final calibration evaluated on all test samples.
+    pub fn report(&self) -> LiveReport {
+        let tests: Vec<Sample> = self.tests.iter().map(MirrorSample::to_sample).collect();
+        let evaluation = self.calibration.as_ref().and_then(|cal| {
+            evaluate(
+                &self.rig,
+                &cal.mirror_cameras,
+                cal.joint_offsets.as_deref(),
+                &tests,
+            )
+            .ok()
+            .map(|e| e.summary())
+        });
+        LiveReport {
+            method: self.config.method.to_string(),
+            train_samples: self.train.len(),
+            test_samples: self.tests.len(),
+            evaluation,
+            calibration: self.calibration.as_ref().map(|c| c.to_file(&self.rig)),
+            located: self.located.clone(),
+            last_error: self.last_error.clone(),
+            counters: self.counters.clone(),
+        }
+    }
+}

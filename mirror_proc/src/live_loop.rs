@@ -1,0 +1,72 @@
+//! Moves messages between iceoryx2 and the pure [`crate::live::Live`] stage.
+
+use anyhow::Result;
+use geometry::Rig;
+use messages::{
+    Bus, CalibrationMsg, JointState, LocatedObject, MirrorSample, Prediction, StereoDetections,
+    topics,
+};
+
+use crate::live::{Live, LiveConfig, LiveReport, Output};
+
+/// Runs the live stage on pipeline `prefix` until the pose plan ends (or a
+/// signal stops it); returns the final report.
+pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
+    let bus = Bus::new(prefix, "mirror_proc")?;
+    let joints = bus.subscriber::<JointState>(topics::JOINT_STATE)?;
+    let detections = bus.subscriber::<StereoDetections>(topics::DETECTIONS)?;
+    let samples = bus.publisher::<MirrorSample>(topics::SAMPLES)?;
+    let calibrations = bus.publisher::<CalibrationMsg>(topics::CALIBRATION)?;
+    let predictions = bus.publisher::<Prediction>(topics::PREDICTIONS)?;
+    let located = bus.publisher::<LocatedObject>(topics::LOCATED)?;
+    let mut live = Live::new(rig, config);
+    let mut failure: Option<anyhow::Error> = None;
+    tracing::info!(prefix, "mirror stage running");
+    bus.wake()?
+        .run(&[joints.listener(), detections.listener()], None, || {
+            let mut step = || -> Result<bool> {
+                let mut outputs = Vec::new();
+                while let Some(js) = joints.receive()? {
+                    outputs.extend(live.push_joint_state(js));
+                }
+                while let Some(d) = detections.receive()? {
+                    let _span = tracing::trace_span!("mirror_step", seq = d.seq).entered();
+                    outputs.extend(live.push_detections(d));
+                }
+                for o in outputs {
+                    match o {
+                        Output::Sample(s) => samples.send(s)?,
+                        Output::Calibration(c) => {
+                            tracing::info!(
+                                revision = c.revision,
+                                samples = c.samples,
+                                rms_px = c.train_rms_px,
+                                "calibration"
+                            );
+                            calibrations.send(c)?
+                        }
+                        Output::Prediction(p) => predictions.send(p)?,
+                        Output::Located(l) => located.send(l)?,
+                    }
+                }
+                Ok(!live.finished())
+            };
+            match step() {
+                Ok(go_on) => go_on,
+                Err(e) => {
+                    failure = Some(e);
+                    false
+                }
+            }
+        })?;
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    let report = live.report();
+    tracing::info!(
+        train = report.train_samples,
+        test = report.test_samples,
+        "pose plan done"
+    );
+    Ok(report)
+}
