@@ -102,6 +102,38 @@ pub struct LiveReport {
     pub last_error: Option<String>,
     /// Counters.
     pub counters: Counters,
+    /// Frame capture to publication of its result in this stage, ms (filled by the I/O loop).
+    #[serde(default)]
+    pub latency_ms: Option<Latency>,
+}
+
+/// Latency percentiles, ms.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Latency {
+    /// Frames measured.
+    pub count: usize,
+    /// Median.
+    pub median: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Maximum.
+    pub max: f64,
+}
+
+impl Latency {
+    /// Percentiles of `values_ns` (nearest rank), or none if empty.
+    pub fn of(values_ns: &[i64]) -> Option<Self> {
+        let mut v = values_ns.to_vec();
+        v.sort_unstable();
+        let rank =
+            |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1] as f64 * 1e-6;
+        (!v.is_empty()).then(|| Self {
+            count: v.len(),
+            median: rank(0.5),
+            p99: rank(0.99),
+            max: rank(1.0),
+        })
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -206,24 +238,34 @@ impl Live {
             if self.finished {
                 return out;
             }
-            let take_joint = match (self.joints.front(), self.detections.front()) {
-                (Some(j), Some(d)) => j.stamp_ns <= d.stamp_ns,
+            enum Next {
+                Joint,
+                Detection,
+                Wait,
+            }
+            let next = match (self.joints.front(), self.detections.front()) {
+                (Some(j), Some(d)) if j.stamp_ns <= d.stamp_ns => Next::Joint,
+                (Some(_), Some(_)) => Next::Detection,
                 // A joint state is safe once detections have passed it.
-                (Some(j), None) => self.last_detection_stamp >= j.stamp_ns,
+                (Some(j), None) if self.last_detection_stamp >= j.stamp_ns => Next::Joint,
                 // A detection is safe once joint states have passed it, or they ended.
-                (None, Some(d)) => self.joints_ended || self.last_joint_stamp > d.stamp_ns,
-                (None, None) => return out,
+                (None, Some(d)) if self.joints_ended || self.last_joint_stamp > d.stamp_ns => {
+                    Next::Detection
+                }
+                _ => Next::Wait,
             };
-            if take_joint {
-                let Some(js) = self.joints.pop_front() else {
-                    return out;
-                };
-                self.on_joint_state(js);
-            } else {
-                let Some(d) = self.detections.pop_front() else {
-                    return out;
-                };
-                self.on_detections(&d, &mut out);
+            match next {
+                Next::Joint => {
+                    if let Some(js) = self.joints.pop_front() {
+                        self.on_joint_state(js);
+                    }
+                }
+                Next::Detection => {
+                    if let Some(d) = self.detections.pop_front() {
+                        self.on_detections(&d, &mut out);
+                    }
+                }
+                Next::Wait => return out,
             }
         }
     }
@@ -429,6 +471,7 @@ impl Live {
             located: self.located.clone(),
             last_error: self.last_error.clone(),
             counters: self.counters.clone(),
+            latency_ms: None,
         }
     }
 }

@@ -7,7 +7,8 @@ use messages::{
     topics,
 };
 
-use crate::live::{Live, LiveConfig, LiveReport, Output};
+use crate::live::{Latency, Live, LiveConfig, LiveReport, Output};
+use messages::now_ns;
 
 /// Runs the live stage on pipeline `prefix` until the pose plan ends (or a
 /// signal stops it); returns the final report.
@@ -21,6 +22,8 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
     let located = bus.publisher::<LocatedObject>(topics::LOCATED)?;
     let mut live = Live::new(rig, config);
     let mut failure: Option<anyhow::Error> = None;
+    // Frame capture (detection stamp) to the moment its sample is published.
+    let mut sample_latency_ns = Vec::new();
     tracing::info!(prefix, "mirror stage running");
     bus.wake()?
         .run(&[joints.listener(), detections.listener()], None, || {
@@ -35,7 +38,10 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
                 }
                 for o in outputs {
                     match o {
-                        Output::Sample(s) => samples.send(s)?,
+                        Output::Sample(s) => {
+                            samples.send(s)?;
+                            sample_latency_ns.push(now_ns() - s.stamp_ns);
+                        }
                         Output::Calibration(c) => {
                             tracing::info!(
                                 revision = c.revision,
@@ -62,7 +68,8 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
     if let Some(e) = failure {
         return Err(e);
     }
-    let report = live.report();
+    let mut report = live.report();
+    report.latency_ms = Latency::of(&sample_latency_ns);
     tracing::info!(
         train = report.train_samples,
         test = report.test_samples,

@@ -1,0 +1,96 @@
+//! The real processes on the simulated scene: camera, tracker, kinematics
+//! and mirror stages over iceoryx2, started by the launcher.
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use tests::{KillOnDrop, stage_binaries, unique_prefix};
+
+#[test]
+fn live_pipeline_calibrates_against_the_simulators_truth() {
+    let bins = stage_binaries();
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("pipeline.toml");
+    std::fs::write(
+        &config,
+        "preset = \"nico\"\nmirrors = [0]\ntrain_poses = 12\ntest_poses = 5\ndirect_poses = 3\nmethod = \"joint+kinematics\"\n\
+         source = \"sim\"\nfps = 30.0\nmove_ms = 100\ndwell_ms = 160\nseed = 3\nmin_train = 8\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let child = Command::new(bins.join("pipeline"))
+        .args([
+            "--config",
+            config.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--prefix",
+            &unique_prefix("e2e"),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut guard = KillOnDrop(child);
+    let started = Instant::now();
+    while guard.0.try_wait().unwrap().is_none() {
+        assert!(
+            started.elapsed() < Duration::from_secs(180),
+            "the pipeline did not finish in 3 minutes"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let status = guard.0.wait().unwrap();
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(guard.0.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+    assert!(status.success(), "pipeline failed: {stderr}");
+
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let placement = &report["placements"][0];
+    let live = &placement["report"];
+    assert_eq!(
+        live["train_samples"], 12,
+        "every calibration pose paired: {live}"
+    );
+    assert_eq!(live["test_samples"], 8, "every test pose paired: {live}");
+
+    // Mirror plane against the simulator's truth. Tolerances: the tracker is
+    // accurate to ~0.1 px, which puts the plane within hundredths of a degree
+    // and a fraction of a mm; 0.5 deg and 5 mm leave an order of magnitude.
+    let angle = placement["plane_angle_deg"].as_f64().unwrap();
+    let distance = placement["plane_distance_mm"].as_f64().unwrap();
+    assert!(angle < 0.5, "plane normal off by {angle} deg");
+    assert!(distance < 5.0, "plane offset off by {distance} mm");
+
+    // The object seen only in the mirror. Bound from the noise: the mean 2D
+    // error on test poses m estimates the pixel noise sigma ~ m / 1.2533; at
+    // range z through a 60 mm baseline with f = 550 px, depth noise is
+    // z^2 / (f b) * sqrt(2) sigma. Four of those, plus 2 mm for the calibration.
+    let m2d = live["evaluation"]["mirror_2d_px"].as_f64().unwrap();
+    let sigma = (m2d / 1.2533).max(0.05);
+    let position: Vec<f64> = live["located"]["7"]
+        .as_array()
+        .expect("hidden object located")
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let world = camera_proc::render::SimWorld::nico(0).unwrap();
+    let truth = world.fixed[0].center;
+    let cal = &live["calibration"]["cameras"][0]["center"];
+    let mirror_cam = nalgebra::Vector3::new(
+        cal[0].as_f64().unwrap(),
+        cal[1].as_f64().unwrap(),
+        cal[2].as_f64().unwrap(),
+    );
+    let z = (truth - mirror_cam).norm();
+    let bound = 4.0 * z * z / (550.0 * 60.0) * 2f64.sqrt() * sigma + 2.0;
+    let error = (nalgebra::Vector3::new(position[0], position[1], position[2]) - truth).norm();
+    assert!(
+        error < bound,
+        "hidden object located {error:.2} mm from the truth (bound {bound:.2} mm)"
+    );
+    eprintln!(
+        "plane {angle:.4} deg / {distance:.3} mm; object {error:.2} mm (bound {bound:.2}); mirror 2D {m2d:.3} px"
+    );
+}
