@@ -189,7 +189,7 @@ fn run_source(prefix: &str, mut source: impl StereoSource, fps: Option<f64>) -> 
     failure.map_or(Ok(()), Err)
 }
 
-fn snapshot(mirror: usize, q: &[f64], facing: Facing, out: &PathBuf) -> Result<()> {
+fn snapshot(mirror: usize, q: &[f64], facing: Facing, out: &std::path::Path) -> Result<()> {
     let world = SimWorld::nico(mirror)?;
     let intr = world.rig.cameras[0].intrinsics;
     let dof = world.rig.arm.as_ref().map_or(0, |a| a.dof());
@@ -210,7 +210,7 @@ fn snapshot(mirror: usize, q: &[f64], facing: Facing, out: &PathBuf) -> Result<(
             intr.width as i32,
             data.as_mut_slice(),
         )?;
-        opencv::imgcodecs::imwrite(&path.to_string_lossy().to_string(), &mat, &Vector::new())
+        opencv::imgcodecs::imwrite(&path, &mat, &Vector::new())
             .with_context(|| format!("{}: cannot write", path.display()))?;
         let drawn: Vec<String> = markers
             .iter()

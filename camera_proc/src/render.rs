@@ -140,11 +140,15 @@ fn hidden_object_spot(rig: &Rig, mirror: &Mirror) -> Option<Vector3<f64>> {
     })
 }
 
+/// A marker as drawn: id, mirror-reversed, and its code square's corners
+/// (distorted px, TL, TR, BR, BL as printed).
+pub type DrawnMarker = (u32, bool, [Vector2<f64>; 4]);
+
 /// Where things really were in a rendered frame (for tests).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RenderTruth {
     /// Per camera, the markers drawn: id, mirrored, corners (distorted px, in texture order TL, TR, BR, BL).
-    pub markers: [Vec<(u32, bool, [Vector2<f64>; 4])>; 2],
+    pub markers: [Vec<DrawnMarker>; 2],
     /// True end-effector position, mm.
     pub end_effector: Option<Vector3<f64>>,
 }
@@ -285,13 +289,13 @@ impl Renderer {
                     let virtual_head = mirror.plane.reflect_point(&head);
                     let corners = card_corners(&center, &virtual_head, side)
                         .map(|c| mirror.plane.reflect_point(&c));
-                    if corners
+                    let behind_glass = corners
                         .iter()
-                        .all(|c| mirror.ray_hits_glass(&cam.center, c))
+                        .all(|c| mirror.ray_hits_glass(&cam.center, c));
+                    if behind_glass
+                        && let Some(px) = warp_card(&mut self.canvas, texture, &cam, &corners)?
                     {
-                        if let Some(px) = warp_card(&mut self.canvas, texture, &cam, &corners)? {
-                            truth.markers[k].push((id, true, px));
-                        }
+                        truth.markers[k].push((id, true, px));
                     }
                 } else {
                     let corners = card_corners(&center, &head, side);

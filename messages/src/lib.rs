@@ -1,6 +1,6 @@
 //! Message types of every topic and the iceoryx2 plumbing the stages share.
 //!
-//! Every type is `#[repr(C)]`, [`ZeroCopySend`] with a versioned type name,
+//! Every type is `#[repr(C)]`, [`iceoryx2::prelude::ZeroCopySend`] with a versioned type name,
 //! of fixed capacity, and laid out without implicit padding (checked by the
 //! size assertions below). Stereo frames travel as a `[u8]` slice (left
 //! image then right image) with a [`FrameHeader`] user header.

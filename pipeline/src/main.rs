@@ -45,6 +45,9 @@ struct Args {
     /// Calibration method (overrides the config).
     #[arg(long)]
     method: Option<String>,
+    /// Camera frame rate, Hz (overrides the config).
+    #[arg(long)]
+    fps: Option<f64>,
     /// Service prefix (default: unique per run).
     #[arg(long)]
     prefix: Option<String>,
@@ -458,6 +461,9 @@ fn run(args: Args) -> Result<()> {
     }
     if let Some(n) = args.poses {
         config.train_poses = n;
+    }
+    if let Some(f) = args.fps {
+        config.fps = f;
     }
     if let Some(m) = args.method {
         config.method = m;

@@ -42,7 +42,7 @@ fn detect_files(images: &[PathBuf]) -> Result<()> {
     let mut detector = Detector::new(true)?;
     for path in images {
         let image = opencv::imgcodecs::imread(
-            &path.to_string_lossy().to_string(),
+            path.to_string_lossy().to_string(),
             opencv::imgcodecs::IMREAD_GRAYSCALE,
         )?;
         if image.empty() {

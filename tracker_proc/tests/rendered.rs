@@ -166,9 +166,5 @@ fn the_stock_dictionary_misses_reversed_markers_ours_flags_them() {
         "the stock dictionary finds {stock_found} reversed markers"
     );
     assert_eq!(ours_flagged + ambiguous, 50);
-    assert!(
-        !ours
-            .mirror_ambiguous_ids()
-            .contains(&camera_proc::render::ARM_MARKER_ID)
-    );
+    assert!(!ours.mirror_ambiguous_ids().contains(&ARM_MARKER_ID));
 }
