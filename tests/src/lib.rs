@@ -5,14 +5,15 @@ use std::path::PathBuf;
 use std::process::{Child, Command};
 use std::sync::OnceLock;
 
-/// Builds the stage binaries (dev profile) once per test run and returns
+/// Builds the stage binaries (test profile) once per test run and returns
 /// their directory.
 pub fn stage_binaries() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let status = Command::new(cargo)
-            .args(["build", "--quiet", "--bins"])
+            // The test profile reuses what `cargo test` just compiled.
+            .args(["build", "--quiet", "--profile", "test", "--bins"])
             .args([
                 "-p",
                 "camera_proc",
