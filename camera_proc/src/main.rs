@@ -230,13 +230,7 @@ fn snapshot(mirror: usize, q: &[f64], facing: Facing, out: &std::path::Path) -> 
 }
 
 fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .with_writer(std::io::stderr)
-        .init();
-    let result = match Args::parse().source {
+    messages::stage_main("camera_proc", || match Args::parse().source {
         Source::Sim {
             prefix,
             mirror,
@@ -265,12 +259,5 @@ fn main() -> ExitCode {
             if direct { Facing::Head } else { Facing::Mirror },
             &out,
         ),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("camera_proc: error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    })
 }

@@ -39,6 +39,8 @@ enum Command {
 }
 
 fn detect_files(images: &[PathBuf]) -> Result<()> {
+    // Our own error names the file; OpenCV's warning would be a second line.
+    opencv::core::set_log_level(opencv::core::LogLevel::LOG_LEVEL_SILENT)?;
     let mut detector = Detector::new(true)?;
     for path in images {
         let image = opencv::imgcodecs::imread(
@@ -143,24 +145,11 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .with_writer(std::io::stderr)
-        .init();
-    let result = match Args::parse().command {
+    messages::stage_main("tracker_proc", || match Args::parse().command {
         Command::Run {
             prefix,
             no_mirrored,
         } => run(&prefix, !no_mirrored),
         Command::Detect { images } => detect_files(&images),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("tracker_proc: error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    })
 }
