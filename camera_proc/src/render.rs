@@ -255,53 +255,49 @@ impl Renderer {
         };
         let mut things: Vec<(u32, Vector3<f64>)> = vec![(self.world.arm_marker, end_effector)];
         things.extend(self.world.fixed.iter().map(|f| (f.id, f.center)));
+        // Where each card is seen (camera independent): the whole card, and its code square for the truth.
         let side = MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM;
+        let mut cards: Vec<(u32, Seen, Seen)> = things
+            .iter()
+            .map(|&(id, center)| {
+                let faces = if id == self.world.arm_marker {
+                    arm_faces
+                } else {
+                    Facing::Mirror
+                };
+                (
+                    id,
+                    self.seen(center, faces, side),
+                    self.seen(center, faces, MARKER_SIZE_MM),
+                )
+            })
+            .collect();
         for (k, out) in [left, right].into_iter().enumerate() {
             let cam = self.world.rig.cameras[k];
             self.canvas
                 .set_to(&Scalar::all(BACKGROUND), &core::no_array())?;
-            let head = 0.5 * (self.world.rig.cameras[0].center + self.world.rig.cameras[1].center);
             // Painter's order: what the camera sees farthest (a reflection is as
             // far as its virtual position) is drawn first.
-            let apparent_depth = |id: u32, c: &Vector3<f64>| {
-                let reflected = self.world.mirror.filter(|m| {
-                    m.plane.signed_distance(c) > 0.0
-                        && (id != self.world.arm_marker || arm_faces == Facing::Mirror)
-                });
-                cam.depth(&reflected.map_or(*c, |m| m.plane.reflect_point(c)))
-            };
-            let mut order = things.clone();
-            order.sort_by(|a, b| apparent_depth(b.0, &b.1).total_cmp(&apparent_depth(a.0, &a.1)));
-            for &(id, center) in &order {
-                // Fixed objects face the mirror; the arm's card faces where the plan says.
-                let faces_mirror = self
-                    .world
-                    .mirror
-                    .is_some_and(|m| m.plane.signed_distance(&center) > 0.0)
-                    && (id != self.world.arm_marker || arm_faces == Facing::Mirror);
+            cards.sort_by(|a, b| cam.depth(&b.1.center).total_cmp(&cam.depth(&a.1.center)));
+            for (id, card, code) in &cards {
                 let texture = &self
                     .textures
                     .iter()
-                    .find(|t| t.0 == id)
+                    .find(|t| t.0 == *id)
                     .expect("texture per id")
                     .1;
-                if let Some(mirror) = self.world.mirror.filter(|_| faces_mirror) {
-                    let virtual_head = mirror.plane.reflect_point(&head);
-                    let corners = card_corners(&center, &virtual_head, side)
-                        .map(|c| mirror.plane.reflect_point(&c));
-                    let behind_glass = corners
-                        .iter()
-                        .all(|c| mirror.ray_hits_glass(&cam.center, c));
-                    if behind_glass
-                        && let Some(px) = warp_card(&mut self.canvas, texture, &cam, &corners)?
-                    {
-                        truth.markers[k].push((id, true, px));
+                let behind_glass = !card.mirrored
+                    || self.world.mirror.is_some_and(|m| {
+                        card.corners
+                            .iter()
+                            .all(|c| m.ray_hits_glass(&cam.center, c))
+                    });
+                if behind_glass && warp_card(&mut self.canvas, texture, &cam, &card.corners)? {
+                    let mut px = [Vector2::zeros(); 4];
+                    for (p, c) in px.iter_mut().zip(&code.corners) {
+                        *p = cam.project(c)?;
                     }
-                } else {
-                    let corners = card_corners(&center, &head, side);
-                    if let Some(px) = warp_card(&mut self.canvas, texture, &cam, &corners)? {
-                        truth.markers[k].push((id, false, px));
-                    }
+                    truth.markers[k].push((*id, card.mirrored, px));
                 }
             }
             let intr = cam.intrinsics;
@@ -322,52 +318,57 @@ impl Renderer {
                 seq.wrapping_mul(2).wrapping_add(k as u64),
             )?;
         }
-        // Corner truth in distorted pixels (markers' inner black square).
-        for k in 0..2 {
-            let cam = self.world.rig.cameras[k];
-            for m in truth.markers[k].iter_mut() {
-                let center = things
-                    .iter()
-                    .find(|t| t.0 == m.0)
-                    .map(|t| t.1)
-                    .unwrap_or_default();
-                let corners = if m.1 {
-                    let mirror = self.world.mirror.expect("mirrored implies a mirror");
-                    let vh = mirror.plane.reflect_point(
-                        &(0.5
-                            * (self.world.rig.cameras[0].center
-                                + self.world.rig.cameras[1].center)),
-                    );
-                    card_corners(&center, &vh, MARKER_SIZE_MM)
-                        .map(|c| mirror.plane.reflect_point(&c))
-                } else {
-                    let head =
-                        0.5 * (self.world.rig.cameras[0].center + self.world.rig.cameras[1].center);
-                    card_corners(&center, &head, MARKER_SIZE_MM)
-                };
-                for (i, c) in corners.iter().enumerate() {
-                    m.2[i] = cam.project(c)?;
-                }
-            }
-        }
         Ok(truth)
+    }
+
+    /// Where the cameras see a card of side `side` centred at `center`: in the
+    /// mirror (reflected) if it is turned to the mirror and in front of it,
+    /// else directly, facing the head.
+    fn seen(&self, center: Vector3<f64>, faces: Facing, side: f64) -> Seen {
+        let head = 0.5 * (self.world.rig.cameras[0].center + self.world.rig.cameras[1].center);
+        let mirror = self
+            .world
+            .mirror
+            .filter(|m| faces == Facing::Mirror && m.plane.signed_distance(&center) > 0.0);
+        match mirror {
+            Some(m) => Seen {
+                mirrored: true,
+                center: m.plane.reflect_point(&center),
+                corners: card_corners(&center, &m.plane.reflect_point(&head), side)
+                    .map(|c| m.plane.reflect_point(&c)),
+            },
+            None => Seen {
+                mirrored: false,
+                center,
+                corners: card_corners(&center, &head, side),
+            },
+        }
     }
 }
 
+/// A card as the cameras see it: reflected when seen in the mirror.
+#[derive(Debug, Clone, Copy)]
+struct Seen {
+    mirrored: bool,
+    center: Vector3<f64>,
+    /// TL, TR, BR, BL as printed.
+    corners: [Vector3<f64>; 4],
+}
+
 /// Warps a card texture onto the ideal canvas at the projections of its
-/// corners; returns the corners (distorted px) if the card is in view.
+/// corners; returns whether the card is in view (and so drawn).
 fn warp_card(
     canvas: &mut Mat,
     texture: &Mat,
     cam: &Camera,
     corners: &[Vector3<f64>; 4],
-) -> Result<Option<[Vector2<f64>; 4]>> {
+) -> Result<bool> {
     let k = cam.intrinsics.k();
     let mut ideal = Vector::<Point2f>::new();
     let mut distorted = [Vector2::zeros(); 4];
     for (i, c) in corners.iter().enumerate() {
         if cam.depth(c) <= 1.0 {
-            return Ok(None);
+            return Ok(false);
         }
         let xy = cam.normalized(c)?;
         let p = k * Vector3::new(xy.x, xy.y, 1.0);
@@ -376,7 +377,7 @@ fn warp_card(
     }
     let inside = distorted.iter().any(|p| cam.intrinsics.contains(p, 0.0));
     if !inside {
-        return Ok(None);
+        return Ok(false);
     }
     // Shrink the texture (area averaging) to about the card's size on screen:
     // bilinear sampling of a much larger texture aliases the edges.
@@ -426,7 +427,7 @@ fn warp_card(
         Scalar::default(),
     )?;
     *canvas = out;
-    Ok(Some(distorted))
+    Ok(true)
 }
 
 /// For every output (distorted) pixel, the ideal pixel it shows.
