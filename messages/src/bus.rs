@@ -83,6 +83,20 @@ impl Bus {
             .map_err(|e| err(format!("event service of {topic}"))(&e))
     }
 
+    fn listener(&self, topic: &str) -> Result<Listener<ipc::Service>, BusError> {
+        self.event(topic)?
+            .listener_builder()
+            .create()
+            .map_err(|e| err(format!("listener of {topic}"))(&e))
+    }
+
+    fn notifier(&self, topic: &str) -> Result<Notifier<ipc::Service>, BusError> {
+        self.event(topic)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err(format!("notifier of {topic}"))(&e))
+    }
+
     fn small_service<T: ZeroCopySend + Debug + 'static>(
         &self,
         topic: &str,
@@ -123,11 +137,7 @@ impl Bus {
             .publisher_builder()
             .create()
             .map_err(|e| err(format!("publisher of {topic}"))(&e))?;
-        let notifier = self
-            .event(topic)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| err(format!("notifier of {topic}"))(&e))?;
+        let notifier = self.notifier(topic)?;
         Ok(Publisher {
             publisher,
             notifier,
@@ -146,11 +156,7 @@ impl Bus {
             .buffer_size(SMALL_BUFFER)
             .create()
             .map_err(|e| err(format!("subscriber of {topic}"))(&e))?;
-        let listener = self
-            .event(topic)?
-            .listener_builder()
-            .create()
-            .map_err(|e| err(format!("listener of {topic}"))(&e))?;
+        let listener = self.listener(topic)?;
         Ok(Subscriber {
             subscriber,
             listener,
@@ -172,11 +178,7 @@ impl Bus {
             .max_loaned_samples(2)
             .create()
             .map_err(|e| err(format!("publisher of {topic}"))(&e))?;
-        let notifier = self
-            .event(topic)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| err(format!("notifier of {topic}"))(&e))?;
+        let notifier = self.notifier(topic)?;
         Ok(FramePublisher {
             publisher,
             notifier,
@@ -191,11 +193,7 @@ impl Bus {
             .buffer_size(FRAME_BUFFER)
             .create()
             .map_err(|e| err(format!("subscriber of {topic}"))(&e))?;
-        let listener = self
-            .event(topic)?
-            .listener_builder()
-            .create()
-            .map_err(|e| err(format!("listener of {topic}"))(&e))?;
+        let listener = self.listener(topic)?;
         Ok(FrameSubscriber {
             subscriber,
             listener,
