@@ -7,6 +7,7 @@ use std::time::Duration;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
 
 use crate::FrameHeader;
 
@@ -38,6 +39,7 @@ fn err(context: impl Into<String>) -> impl FnOnce(&dyn Debug) -> BusError {
 pub struct Bus {
     node: Node<ipc::Service>,
     prefix: String,
+    lossless: bool,
 }
 
 impl Bus {
@@ -59,7 +61,20 @@ impl Bus {
         Ok(Self {
             node,
             prefix: prefix.to_string(),
+            lossless: false,
         })
+    }
+
+    /// Creates services whose full subscriber buffers make publishers wait
+    /// instead of overwriting the oldest message, so nothing is lost and a
+    /// source runs as fast as its slowest consumer (replay in lockstep).
+    ///
+    /// Only the creator of a service decides this: every stage that opens
+    /// it later inherits it, so create the services before starting the
+    /// stages. Opening a service that already overwrites is an error.
+    pub fn lossless(mut self) -> Self {
+        self.lossless = true;
+        self
     }
 
     /// The pipeline's prefix.
@@ -101,9 +116,15 @@ impl Bus {
         &self,
         topic: &str,
     ) -> Result<PortFactoryPubSub<T>, BusError> {
-        self.node
+        let mut builder = self
+            .node
             .service_builder(&self.name(topic, "")?)
-            .publish_subscribe::<T>()
+            .publish_subscribe::<T>();
+        // Set only when lossless: setting it also demands it of an existing service.
+        if self.lossless {
+            builder = builder.enable_safe_overflow(false);
+        }
+        builder
             .subscriber_max_buffer_size(SMALL_BUFFER)
             .history_size(0)
             .max_publishers(MAX_PORTS)
@@ -114,10 +135,15 @@ impl Bus {
     }
 
     fn frame_service(&self, topic: &str) -> Result<PortFactoryFrames, BusError> {
-        self.node
+        let mut builder = self
+            .node
             .service_builder(&self.name(topic, "")?)
             .publish_subscribe::<[u8]>()
-            .user_header::<FrameHeader>()
+            .user_header::<FrameHeader>();
+        if self.lossless {
+            builder = builder.enable_safe_overflow(false);
+        }
+        builder
             .subscriber_max_buffer_size(FRAME_BUFFER)
             .history_size(0)
             .max_publishers(MAX_PORTS)
@@ -219,6 +245,27 @@ impl Bus {
             .number_of_subscribers())
     }
 
+    /// Opens (creating if needed) the service of every topic and keeps them
+    /// for as long as the returned value lives, so that they exist with this
+    /// bus's settings before any stage starts.
+    pub fn open_all(&self) -> Result<OpenServices, BusError> {
+        use crate::{
+            CalibrationMsg, JointState, LocatedObject, MirrorSample, Prediction, StereoDetections,
+            topics,
+        };
+        Ok(OpenServices {
+            _frames: self.frame_service(topics::FRAMES)?,
+            _small: (
+                self.small_service::<StereoDetections>(topics::DETECTIONS)?,
+                self.small_service::<JointState>(topics::JOINT_STATE)?,
+                self.small_service::<MirrorSample>(topics::SAMPLES)?,
+                self.small_service::<CalibrationMsg>(topics::CALIBRATION)?,
+                self.small_service::<Prediction>(topics::PREDICTIONS)?,
+                self.small_service::<LocatedObject>(topics::LOCATED)?,
+            ),
+        })
+    }
+
     /// A waitset to sleep on the subscribers' events.
     pub fn wake(&self) -> Result<Wake, BusError> {
         Ok(Wake {
@@ -227,6 +274,20 @@ impl Bus {
                 .map_err(|e| err("waitset")(&e))?,
         })
     }
+}
+
+/// Every topic's service, held open (see [`Bus::open_all`]).
+pub struct OpenServices {
+    _frames: PortFactoryFrames,
+    #[allow(clippy::type_complexity)]
+    _small: (
+        PortFactoryPubSub<crate::StereoDetections>,
+        PortFactoryPubSub<crate::JointState>,
+        PortFactoryPubSub<crate::MirrorSample>,
+        PortFactoryPubSub<crate::CalibrationMsg>,
+        PortFactoryPubSub<crate::Prediction>,
+        PortFactoryPubSub<crate::LocatedObject>,
+    ),
 }
 
 type PortFactoryEvent = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
@@ -360,7 +421,8 @@ pub struct Wake {
 
 impl Wake {
     /// Runs `on_wake` each time any of `listeners` is notified or `tick`
-    /// passes, until it returns `false` or SIGINT/SIGTERM arrives.
+    /// passes, until it returns `false` or SIGINT/SIGTERM arrives (after
+    /// which it runs once more, to take what is waiting).
     pub fn run(
         &self,
         listeners: &[&Listener<ipc::Service>],
@@ -387,7 +449,8 @@ impl Wake {
         if !on_wake() {
             return Ok(());
         }
-        self.waitset
+        let result = self
+            .waitset
             .wait_and_process(|_| {
                 if on_wake() {
                     CallbackProgression::Continue
@@ -396,6 +459,14 @@ impl Wake {
                 }
             })
             .map_err(|e| err("waitset")(&e))?;
+        // Stopped by a signal: handle what already arrived, so that a stage
+        // stopped after its source has finished loses nothing.
+        if matches!(
+            result,
+            WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest
+        ) {
+            on_wake();
+        }
         drop(guards);
         Ok(())
     }

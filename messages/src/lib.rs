@@ -22,7 +22,9 @@
 mod bus;
 mod types;
 
-pub use bus::{Bus, BusError, FramePublisher, FrameSubscriber, Publisher, Subscriber, Wake};
+pub use bus::{
+    Bus, BusError, FramePublisher, FrameSubscriber, OpenServices, Publisher, Subscriber, Wake,
+};
 pub use types::*;
 
 /// Topic names (appended to the prefix).
@@ -72,6 +74,8 @@ pub fn stage_main(name: &str, run: impl FnOnce() -> anyhow::Result<()>) -> std::
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
         .with_writer(std::io::stderr)
+        // Stage logs usually go to a file (stages.log): colour only on a terminal.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     match run() {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,5 +1,6 @@
 //! The message types. Units: mm, rad, px, ns (`i64`, CLOCK_MONOTONIC).
 
+use bytemuck::{Pod, Zeroable};
 use iceoryx2::prelude::ZeroCopySend;
 use nalgebra::{Matrix3, Vector2, Vector3};
 
@@ -20,7 +21,7 @@ pub mod encoding {
 
 /// User header of a stereo frame; the payload holds the left then the right
 /// image, each `height * stride` bytes.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.FrameHeader.v1")]
 #[repr(C)]
 pub struct FrameHeader {
@@ -85,7 +86,7 @@ impl FrameHeader {
 }
 
 /// One marker found in one image.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.Marker.v1")]
 #[repr(C)]
 pub struct Marker {
@@ -100,7 +101,7 @@ pub struct Marker {
 }
 
 /// The markers found in one camera image.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.CameraMarkers.v1")]
 #[repr(C)]
 pub struct CameraMarkers {
@@ -138,7 +139,7 @@ impl CameraMarkers {
 }
 
 /// Detections of one stereo frame.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.StereoDetections.v1")]
 #[repr(C)]
 pub struct StereoDetections {
@@ -171,7 +172,7 @@ pub mod role {
 }
 
 /// The arm's joint state and the end-effector model's prediction.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.JointState.v1")]
 #[repr(C)]
 pub struct JointState {
@@ -203,7 +204,7 @@ impl JointState {
 }
 
 /// One paired sample: a settled pose and the first stereo detection after it.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.MirrorSample.v1")]
 #[repr(C)]
 pub struct MirrorSample {
@@ -243,7 +244,7 @@ impl MirrorSample {
 }
 
 /// A mirror-perspective camera's pose.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.CameraPose.v1")]
 #[repr(C)]
 pub struct CameraPose {
@@ -279,7 +280,7 @@ impl CameraPose {
 }
 
 /// A calibration of the mirror cameras.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.Calibration.v1")]
 #[repr(C)]
 pub struct CalibrationMsg {
@@ -306,7 +307,7 @@ pub struct CalibrationMsg {
 }
 
 /// A test sample's prediction through the current calibration.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.Prediction.v1")]
 #[repr(C)]
 pub struct Prediction {
@@ -333,7 +334,7 @@ pub struct Prediction {
 }
 
 /// A marker other than the arm's, located through the mirror.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.LocatedObject.v1")]
 #[repr(C)]
 pub struct LocatedObject {

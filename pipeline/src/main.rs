@@ -51,6 +51,22 @@ struct Args {
     /// Service prefix (default: unique per run).
     #[arg(long)]
     prefix: Option<String>,
+    /// Do not record (by default each placement is recorded into
+    /// OUT/mirror<i>/recording.mcap).
+    #[arg(long)]
+    no_record: bool,
+    /// Serve the viewing channels live to Foxglove on this localhost port
+    /// (ws://127.0.0.1:PORT) while the pipeline runs.
+    #[arg(long)]
+    live_view: Option<u16>,
+}
+
+/// Recording settings of a run.
+#[derive(Debug, Clone)]
+struct Recording {
+    enabled: bool,
+    live_view: Option<u16>,
+    config_path: PathBuf,
 }
 
 /// The run's settings.
@@ -83,6 +99,7 @@ struct PlacementResult {
     hidden_object_error_mm: Option<f64>,
     restarts: u32,
     seconds: f64,
+    recording: Option<PathBuf>,
 }
 
 struct Stage {
@@ -168,6 +185,37 @@ fn plan_for(config: &Config, mirror: usize) -> Result<(geometry::sim::Dataset, V
     Ok((data, plan))
 }
 
+/// Stops the recorder last, once every source has stopped, and gives it
+/// time to take what is waiting and finish the file.
+fn stop_recorder(recorder: Option<Child>, path: &Path) -> Option<PathBuf> {
+    let mut child = recorder?;
+    interrupt(&mut child);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < deadline && matches!(child.try_wait(), Ok(None)) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    match child.try_wait() {
+        Ok(Some(status)) if status.success() => Some(path.to_path_buf()),
+        Ok(Some(status)) => {
+            eprintln!(
+                "recorder exited ({status}); {} may end early",
+                path.display()
+            );
+            Some(path.to_path_buf())
+        }
+        _ => {
+            let _ = child.kill();
+            let _ = child.wait();
+            eprintln!(
+                "recorder did not finish in 60 s; {} may end early",
+                path.display()
+            );
+            Some(path.to_path_buf())
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
 fn run_placement(
     config: &Config,
     mirror: usize,
@@ -175,6 +223,7 @@ fn run_placement(
     prefix: &str,
     bin_dir: &Path,
     stop_flag: &AtomicBool,
+    recording: &Recording,
 ) -> Result<PlacementResult> {
     let dir = out.join(format!("mirror{mirror}"));
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
@@ -189,6 +238,35 @@ fn run_placement(
     let _ = std::fs::remove_file(&log);
     let s = |v: &str| v.to_string();
     let started = Instant::now();
+    // The recorder first, so it sees every message; it is not restarted
+    // (a restart would overwrite the file) and its failure does not stop the run.
+    let recording_path = dir.join("recording.mcap");
+    let mut recorder = if recording.enabled {
+        let mut args = vec![
+            s("--prefix"),
+            s(prefix),
+            s("--out"),
+            recording_path.display().to_string(),
+            s("--rig"),
+            rig_path.display().to_string(),
+            s("--attach"),
+            plan_path.display().to_string(),
+            s("--attach"),
+            recording.config_path.display().to_string(),
+            s("--meta"),
+            format!("mirror={mirror}"),
+            s("--meta"),
+            format!("method={}", config.method),
+            s("--meta"),
+            format!("fps={}", config.fps),
+        ];
+        if let Some(port) = recording.live_view {
+            args.extend([s("--live-view"), port.to_string()]);
+        }
+        Some(spawn(bin_dir, "recorder", &args, &log)?)
+    } else {
+        None
+    };
     let mut stages = vec![
         Stage::spawn(
             bin_dir,
@@ -236,11 +314,13 @@ fn run_placement(
         let frames = bus.frame_subscriber_count(topics::FRAMES)?;
         let dets = bus.subscriber_count::<StereoDetections>(topics::DETECTIONS)?;
         let joints = bus.subscriber_count::<JointState>(topics::JOINT_STATE)?;
-        if frames >= 1 && dets >= 1 && joints >= 2 {
+        let extra = usize::from(recorder.is_some());
+        if frames > extra && dets > extra && joints >= 2 + extra {
             break;
         }
         if ready.elapsed() > Duration::from_secs(30) || stop_flag.load(Ordering::SeqCst) {
             stop(&mut stages);
+            stop_recorder(recorder.take(), &recording_path);
             bail!(
                 "mirror {mirror}: the stages did not come up within 30 s (see {})",
                 log.display()
@@ -260,7 +340,7 @@ fn run_placement(
         s("--dwell-ms"),
         config.dwell_ms.to_string(),
         s("--wait-subscribers"),
-        s("2"),
+        (2 + usize::from(recorder.is_some())).to_string(),
     ];
     stages.push(Stage::spawn(bin_dir, "kinematics_proc", kin_args, &log)?);
     // Progress from the stage outputs.
@@ -294,10 +374,12 @@ fn run_placement(
         }
         if stop_flag.load(Ordering::SeqCst) {
             stop(&mut stages);
+            stop_recorder(recorder.take(), &recording_path);
             bail!("interrupted");
         }
         if Instant::now() > deadline {
             stop(&mut stages);
+            stop_recorder(recorder.take(), &recording_path);
             bail!(
                 "mirror {mirror}: the run did not finish in time (see {})",
                 log.display()
@@ -321,8 +403,18 @@ fn run_placement(
                 }
             }
         }
+        if let Some(r) = recorder.as_mut()
+            && let Some(status) = r.try_wait()?
+        {
+            eprintln!(
+                "\nrecorder exited ({status}); the run goes on unrecorded (see {})",
+                log.display()
+            );
+            recorder = None;
+        }
         if let Some(name) = failed {
             stop(&mut stages);
+            stop_recorder(recorder.take(), &recording_path);
             bail!("{name} keeps failing (see {})", log.display());
         }
         if done {
@@ -335,6 +427,7 @@ fn run_placement(
     }
     let restarts = stages.iter().map(|s| s.restarts).sum();
     stop(&mut stages);
+    let recording_file = stop_recorder(recorder.take(), &recording_path);
     let report: LiveReport = serde_json::from_str(
         &std::fs::read_to_string(&report_path)
             .with_context(|| format!("{}: missing", report_path.display()))?,
@@ -374,6 +467,7 @@ fn run_placement(
         report,
         restarts,
         seconds: started.elapsed().as_secs_f64(),
+        recording: recording_file,
     })
 }
 
@@ -497,11 +591,16 @@ fn run(args: Args) -> Result<()> {
     let base_prefix = args
         .prefix
         .unwrap_or_else(|| format!("run{}", std::process::id()));
+    let recording = Recording {
+        enabled: !args.no_record,
+        live_view: args.live_view,
+        config_path: args.config.clone(),
+    };
     let mut results = Vec::new();
     for &m in &config.mirrors {
         let prefix = format!("{base_prefix}_m{m}");
         results.push(run_placement(
-            &config, m, &args.out, &prefix, &bin_dir, &stop_flag,
+            &config, m, &args.out, &prefix, &bin_dir, &stop_flag, &recording,
         )?);
     }
     print!("{}", table(&results, &config.method));
@@ -511,7 +610,7 @@ fn run(args: Args) -> Result<()> {
     std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n")
         .with_context(|| format!("{}: cannot write", path.display()))?;
     println!(
-        "report: {}  (per placement: {}/mirror<i>/{{report.json, rig.toml, plan.csv, stages.log}})",
+        "report: {}  (per placement: {}/mirror<i>/{{report.json, recording.mcap, rig.toml, plan.csv, stages.log}})",
         path.display(),
         args.out.display()
     );

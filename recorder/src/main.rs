@@ -1,9 +1,135 @@
-//! `recorder`: a stage of the live pipeline. Not implemented yet; the offline
-//! tools live in `mirror_proc`.
+//! `recorder`: records every topic of a running pipeline into one MCAP file
+//! until Ctrl-C or SIGTERM; see the crate docs and the README.
 
-fn main() -> std::process::ExitCode {
-    eprintln!(
-        "recorder: this live-pipeline stage is not implemented yet; use mirror_proc for the offline tools"
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use recorder::writer::{Compression, WriterOptions};
+use recorder::{RecordOptions, record};
+
+/// Record a running pipeline into an MCAP file (until Ctrl-C / SIGTERM).
+#[derive(Debug, Parser)]
+#[command(version, about)]
+struct Args {
+    /// Service prefix of the pipeline to record.
+    #[arg(long)]
+    prefix: String,
+    /// Output file.
+    #[arg(long, default_value = "recording.mcap")]
+    out: PathBuf,
+    /// Chunk compression.
+    #[arg(long, value_enum, default_value_t = Compression::Zstd)]
+    compression: Compression,
+    /// Rig TOML: enables camera calibrations, camera frames and the arm in
+    /// the viewing channels, and is stored as metadata and an attachment.
+    #[arg(long)]
+    rig: Option<PathBuf>,
+    /// More files to attach (the pose plan, the pipeline config, ...).
+    #[arg(long)]
+    attach: Vec<PathBuf>,
+    /// Extra metadata, KEY=VALUE (stored in the `run` metadata record).
+    #[arg(long, value_parser = parse_key_value)]
+    meta: Vec<(String, String)>,
+    /// Wait for the writer instead of dropping frames when it falls behind.
+    #[arg(long)]
+    no_drop: bool,
+    /// Frames queued for the writer at most.
+    #[arg(long, default_value_t = 64)]
+    frame_queue: usize,
+    /// Leave out the viewing image channels (the frames stay in the lossless channel).
+    #[arg(long)]
+    no_view_images: bool,
+    /// Finish a chunk at least this often, ms (what a crash can lose).
+    #[arg(long, default_value_t = 1000)]
+    flush_ms: u64,
+    /// Also serve the viewing channels live to Foxglove over WebSocket on this port of localhost.
+    #[arg(long)]
+    live_view: Option<u16>,
+    /// Print the summary as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_key_value(s: &str) -> Result<(String, String), String> {
+    s.split_once('=')
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .ok_or_else(|| format!("`{s}`: expected KEY=VALUE"))
+}
+
+fn run(args: Args) -> Result<()> {
+    let mut metadata = Vec::new();
+    let mut run_meta: BTreeMap<String, String> = args.meta.iter().cloned().collect();
+    run_meta.insert("prefix".into(), args.prefix.clone());
+    run_meta.insert("recorder_version".into(), env!("CARGO_PKG_VERSION").into());
+    run_meta.insert(
+        "log_time".into(),
+        "message stamp, CLOCK_MONOTONIC ns".into(),
     );
-    std::process::ExitCode::from(2)
+    metadata.push(("run".to_string(), run_meta));
+    let layouts = recorder::channels::Topic::ALL
+        .iter()
+        .map(|t| {
+            (
+                t.name().to_string(),
+                format!("{} ({} bytes)", t.layout().type_name, t.layout().size),
+            )
+        })
+        .collect();
+    metadata.push(("layouts".to_string(), layouts));
+    let mut attachments = Vec::new();
+    let rig = match &args.rig {
+        Some(path) => {
+            let rig = formats::rig::read(path)?;
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("{}: cannot read", path.display()))?;
+            metadata.push((
+                "rig".to_string(),
+                BTreeMap::from([("toml".to_string(), text)]),
+            ));
+            attachments.push(("rig.toml".to_string(), path.clone()));
+            Some(rig)
+        }
+        None => None,
+    };
+    for path in &args.attach {
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        attachments.push((name, path.clone()));
+    }
+    let options = RecordOptions {
+        writer: WriterOptions {
+            compression: args.compression,
+            flush_every: Duration::from_millis(args.flush_ms.max(1)),
+            frame_queue: args.frame_queue,
+            view_images: !args.no_view_images,
+            metadata,
+            attachments,
+            ..Default::default()
+        },
+        rig,
+        live_view: args.live_view.map(|p| ("127.0.0.1".to_string(), p)),
+        drop_frames: !args.no_drop,
+    };
+    let summary = record(&args.prefix, &args.out, options)?;
+    tracing::info!(
+        file = %summary.path.display(),
+        bytes = summary.file_bytes,
+        frames_dropped = summary.frames_dropped_queue_full,
+        frames_missed = summary.frames_missed,
+        "recording finished"
+    );
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    messages::stage_main("recorder", || run(Args::parse()))
 }

@@ -1,0 +1,129 @@
+//! `replay`: publishes a recording back onto the bus; see the crate docs.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Result, bail};
+use clap::Parser;
+use recorder::channels::Topic;
+use recorder::reader::Recording;
+use recorder::replay::{Pace, ReplayOptions, replay};
+
+/// Publish a recording back onto a pipeline's topics.
+///
+/// Start replay first (it creates the services, lossless), then the stages
+/// to re-run on the same --prefix: `--kind frames` re-runs tracker_proc and
+/// mirror_proc, `--kind detections` re-runs mirror_proc only.
+#[derive(Debug, Parser)]
+#[command(version, about, long_about = None)]
+struct Args {
+    /// The MCAP recording.
+    file: PathBuf,
+    /// Service prefix to publish on (use a fresh one, not a live pipeline's).
+    #[arg(long)]
+    prefix: String,
+    /// What to publish: `frames` (frames and joint states), `detections`
+    /// (detections and joint states), or `all` (every recorded topic).
+    #[arg(long, default_value = "frames")]
+    kind: String,
+    /// Publish exactly these topics instead (comma separated), e.g. joint_state,detections.
+    #[arg(long, value_delimiter = ',')]
+    topics: Option<Vec<String>>,
+    /// original, lockstep (as fast as the slowest consumer takes them), or a factor such as 2x.
+    #[arg(long, default_value = "lockstep")]
+    pace: Pace,
+    /// Start this many seconds after the first message.
+    #[arg(long, default_value_t = 0.0)]
+    start: f64,
+    /// Wait until each replayed topic has this many subscribers.
+    #[arg(long, default_value_t = 1)]
+    wait_subscribers: usize,
+    /// How long to wait for them, s.
+    #[arg(long, default_value_t = 30.0)]
+    wait_timeout: f64,
+    /// Print the statistics as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn topics_of(args: &Args) -> Result<Vec<Topic>> {
+    if let Some(names) = &args.topics {
+        return names
+            .iter()
+            .map(|n| {
+                Topic::from_name(n).ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "--topics: unknown topic `{n}` (known: {})",
+                        Topic::ALL.map(|t| t.name()).join(", ")
+                    )
+                })
+            })
+            .collect();
+    }
+    Ok(match args.kind.as_str() {
+        "frames" => vec![Topic::Frames, Topic::JointState],
+        "detections" => vec![Topic::Detections, Topic::JointState],
+        "all" => Topic::ALL.to_vec(),
+        other => bail!("--kind: `{other}` is not frames, detections or all"),
+    })
+}
+
+fn run(args: Args) -> Result<()> {
+    let topics = topics_of(&args)?;
+    let recording = Recording::open(&args.file)?;
+    let contents = recording.contents();
+    if let Some(d) = &contents.damage {
+        tracing::warn!(
+            "{}: damaged after {} messages ({}); replaying the readable part",
+            args.file.display(),
+            d.after_messages,
+            d.error
+        );
+    }
+    for t in &topics {
+        if contents.counts.get(t).copied().unwrap_or(0) == 0 {
+            tracing::warn!(
+                topic = t.name(),
+                "the recording has no messages on this topic"
+            );
+        }
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))?;
+    }
+    let options = ReplayOptions {
+        topics,
+        pace: args.pace,
+        start_s: args.start,
+        wait_subscribers: args.wait_subscribers,
+        wait_timeout: Duration::from_secs_f64(args.wait_timeout.max(0.0)),
+        progress: std::io::stderr().is_terminal(),
+    };
+    let stats = replay(&recording, &args.prefix, &options, &|| {
+        stop.load(Ordering::SeqCst)
+    })?;
+    tracing::info!(
+        published = stats.published,
+        recorded_s = stats.recorded_seconds,
+        wall_s = stats.wall_seconds,
+        speed = stats.speed(),
+        "replay done"
+    );
+    if let Some(why) = &stats.stopped_early {
+        tracing::warn!("{why}");
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&stats)?);
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    messages::stage_main("replay", || run(Args::parse()))
+}

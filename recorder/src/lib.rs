@@ -1,0 +1,101 @@
+//! Recording and replay of the pipeline in MCAP.
+//!
+//! - [`record`] subscribes to every topic of a pipeline and writes one MCAP
+//!   file: lossless channels ([`channels`]) with the exact message bytes and
+//!   a layout schema, and viewing channels ([`view`]) in Foxglove's schemas,
+//!   chunked, compressed, indexed, with metadata and attachments. A writer
+//!   thread ([`writer`]) finishes a chunk at least once a second.
+//! - [`reader::Recording`] reads one back, refusing layouts this build does
+//!   not know and stopping cleanly at damage.
+//! - [`replay::replay`] publishes it onto the bus again.
+//! - [`live_view::LiveView`] serves the viewing channels over the Foxglove
+//!   WebSocket protocol while the pipeline runs.
+//!
+//! ```no_run
+//! use recorder::reader::Recording;
+//! let recording = Recording::open("out/pipeline/mirror0/recording.mcap")?;
+//! println!("{} lossless messages", recording.contents().total());
+//! # Ok::<(), recorder::reader::ReadError>(())
+//! ```
+#![warn(missing_docs)]
+
+pub mod capture;
+pub mod channels;
+pub mod live_view;
+pub mod reader;
+pub mod replay;
+pub mod view;
+pub mod writer;
+
+use std::path::Path;
+use std::time::Duration;
+
+use messages::Bus;
+
+use crate::capture::Capture;
+use crate::live_view::LiveView;
+use crate::view::ViewBuilder;
+use crate::writer::{RecordingSummary, WriterOptions};
+
+/// How [`record`] runs.
+pub struct RecordOptions {
+    /// The writer's settings.
+    pub writer: WriterOptions,
+    /// The rig, for camera calibrations, camera frames and the arm.
+    pub rig: Option<geometry::Rig>,
+    /// Serve the live view on this `host:port`.
+    pub live_view: Option<(String, u16)>,
+    /// Drop frames (counted) when the writer falls behind, instead of
+    /// waiting for it (which holds up the camera only on lossless buses).
+    pub drop_frames: bool,
+}
+
+/// Records pipeline `prefix` into `path` until SIGINT/SIGTERM, then takes
+/// what is still waiting, finishes the file and returns its summary.
+pub fn record(
+    prefix: &str,
+    path: &Path,
+    options: RecordOptions,
+) -> anyhow::Result<RecordingSummary> {
+    let bus = Bus::new(prefix, "recorder")?;
+    let capture = Capture::new(&bus)?;
+    let live = match &options.live_view {
+        Some((host, port)) => {
+            let live = LiveView::start(host, *port).map_err(anyhow::Error::msg)?;
+            tracing::info!(
+                port = live.port(),
+                "live view: connect Foxglove to ws://{host}:{}",
+                live.port()
+            );
+            Some(live)
+        }
+        None => None,
+    };
+    let handle = writer::start(
+        path,
+        options.writer,
+        ViewBuilder::new(options.rig),
+        live,
+        options.drop_frames,
+    )
+    .map_err(anyhow::Error::msg)?;
+    tracing::info!(prefix, path = %path.display(), "recording");
+    let mut failure = None;
+    bus.wake()?.run(
+        &capture.listeners(),
+        Some(Duration::from_millis(250)),
+        || match capture.drain(&handle) {
+            Ok(_) => true,
+            Err(e) => {
+                failure = Some(e);
+                false
+            }
+        },
+    )?;
+    let summary = handle.finish();
+    match (summary, failure) {
+        (Ok(summary), None) => Ok(summary),
+        (Err(e), _) => Err(anyhow::anyhow!("recording stopped: {e}")),
+        (Ok(_), Some(e)) => Err(anyhow::anyhow!("recording stopped: {e}")),
+    }
+}

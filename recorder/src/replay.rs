@@ -1,0 +1,281 @@
+//! Publishing a recording back onto the bus, so that any subset of stages
+//! can run on it: frames (and joint states) to re-run the tracker and the
+//! mirror stage, or detections and joint states to re-run the mirror stage.
+//!
+//! Replay creates every service of its prefix *lossless* (see
+//! [`messages::Bus::lossless`]) before any stage starts: a full subscriber
+//! buffer then makes the publisher wait instead of dropping, all the way
+//! down the pipeline, so nothing is lost at any speed.
+
+use std::time::{Duration, Instant};
+
+use messages::{
+    Bus, CalibrationMsg, JointState, LocatedObject, MirrorSample, Prediction, Publisher,
+    StereoDetections, topics,
+};
+
+use crate::channels::{Message, Topic};
+use crate::reader::Recording;
+
+/// How fast to replay.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pace {
+    /// As recorded (log-time gaps kept).
+    Original,
+    /// Log-time gaps divided by this factor (2 = twice as fast).
+    Scaled(f64),
+    /// As fast as the slowest consumer takes the messages.
+    Lockstep,
+}
+
+impl std::str::FromStr for Pace {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "original" => Ok(Pace::Original),
+            "lockstep" => Ok(Pace::Lockstep),
+            _ => match s.strip_suffix('x').unwrap_or(s).parse::<f64>() {
+                Ok(f) if f.is_finite() && f > 0.0 => Ok(Pace::Scaled(f)),
+                _ => Err(format!(
+                    "`{s}`: expected original, lockstep or a speed factor such as 2x"
+                )),
+            },
+        }
+    }
+}
+
+/// What to replay and how.
+#[derive(Debug, Clone)]
+pub struct ReplayOptions {
+    /// Topics to publish.
+    pub topics: Vec<Topic>,
+    /// Pace.
+    pub pace: Pace,
+    /// Skip messages logged earlier than this many seconds after the first.
+    pub start_s: f64,
+    /// Wait (up to `wait_timeout`) until each replayed topic has this many
+    /// subscribers before publishing.
+    pub wait_subscribers: usize,
+    /// How long to wait for subscribers.
+    pub wait_timeout: Duration,
+    /// Show a progress bar.
+    pub progress: bool,
+}
+
+/// What a replay did.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct ReplayStats {
+    /// Messages published.
+    pub published: u64,
+    /// Recorded time span covered, s.
+    pub recorded_seconds: f64,
+    /// Wall time taken, s.
+    pub wall_seconds: f64,
+    /// Set if the file was damaged and replay stopped early.
+    pub stopped_early: Option<String>,
+}
+
+impl ReplayStats {
+    /// Recorded time per wall time.
+    pub fn speed(&self) -> f64 {
+        self.recorded_seconds / self.wall_seconds.max(1e-9)
+    }
+}
+
+struct Publishers {
+    frames: Option<messages::FramePublisher>,
+    detections: Option<Publisher<StereoDetections>>,
+    joints: Option<Publisher<JointState>>,
+    samples: Option<Publisher<MirrorSample>>,
+    calibrations: Option<Publisher<CalibrationMsg>>,
+    predictions: Option<Publisher<Prediction>>,
+    located: Option<Publisher<LocatedObject>>,
+}
+
+/// The largest frame in the recording, to size the frame publisher.
+fn largest_frame(recording: &Recording) -> Result<usize, String> {
+    let mut largest = 0;
+    recording.for_each(|_, m| {
+        if let Message::Frame(_, pixels) = m {
+            largest = largest.max(pixels.len());
+        }
+        Ok::<_, String>(true)
+    })?;
+    Ok(largest.max(1))
+}
+
+fn subscriber_count(bus: &Bus, topic: Topic) -> Result<usize, messages::BusError> {
+    match topic {
+        Topic::Frames => bus.frame_subscriber_count(topics::FRAMES),
+        Topic::Detections => bus.subscriber_count::<StereoDetections>(topic.name()),
+        Topic::JointState => bus.subscriber_count::<JointState>(topic.name()),
+        Topic::Samples => bus.subscriber_count::<MirrorSample>(topic.name()),
+        Topic::Calibration => bus.subscriber_count::<CalibrationMsg>(topic.name()),
+        Topic::Predictions => bus.subscriber_count::<Prediction>(topic.name()),
+        Topic::Located => bus.subscriber_count::<LocatedObject>(topic.name()),
+    }
+}
+
+/// Replays `recording` onto pipeline `prefix`. `stop` is polled between
+/// messages (Ctrl-C).
+pub fn replay(
+    recording: &Recording,
+    prefix: &str,
+    options: &ReplayOptions,
+    stop: &dyn Fn() -> bool,
+) -> anyhow::Result<ReplayStats> {
+    let bus = Bus::new(prefix, "replay")?.lossless();
+    let _services = bus.open_all().map_err(|e| {
+        anyhow::anyhow!(
+            "{e} (replay must create the services of prefix `{prefix}` before the stages start; \
+             is a live pipeline using this prefix?)"
+        )
+    })?;
+    let wants = |t: Topic| options.topics.contains(&t);
+    let p = Publishers {
+        frames: if wants(Topic::Frames) {
+            Some(bus.frame_publisher(
+                topics::FRAMES,
+                largest_frame(recording).map_err(anyhow::Error::msg)?,
+            )?)
+        } else {
+            None
+        },
+        detections: wants(Topic::Detections)
+            .then(|| bus.publisher(topics::DETECTIONS))
+            .transpose()?,
+        joints: wants(Topic::JointState)
+            .then(|| bus.publisher(topics::JOINT_STATE))
+            .transpose()?,
+        samples: wants(Topic::Samples)
+            .then(|| bus.publisher(topics::SAMPLES))
+            .transpose()?,
+        calibrations: wants(Topic::Calibration)
+            .then(|| bus.publisher(topics::CALIBRATION))
+            .transpose()?,
+        predictions: wants(Topic::Predictions)
+            .then(|| bus.publisher(topics::PREDICTIONS))
+            .transpose()?,
+        located: wants(Topic::Located)
+            .then(|| bus.publisher(topics::LOCATED))
+            .transpose()?,
+    };
+    let waiting = Instant::now();
+    for &t in &options.topics {
+        while subscriber_count(&bus, t)? < options.wait_subscribers {
+            if stop() {
+                anyhow::bail!("interrupted while waiting for subscribers");
+            }
+            if waiting.elapsed() > options.wait_timeout {
+                anyhow::bail!(
+                    "topic `{}` has {} subscribers after {:.0} s, waiting for {}",
+                    t.name(),
+                    subscriber_count(&bus, t)?,
+                    options.wait_timeout.as_secs_f64(),
+                    options.wait_subscribers
+                );
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+    let contents = recording.contents();
+    let first = contents.time_range.map_or(0, |r| r.0);
+    let start_at = first + (options.start_s.max(0.0) * 1e9) as u64;
+    let total: u64 = options
+        .topics
+        .iter()
+        .map(|t| contents.counts.get(t).copied().unwrap_or(0))
+        .sum();
+    let bar = if options.progress {
+        indicatif::ProgressBar::new(total)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {pos}/{len} messages ({per_sec})",
+        )
+        .expect("a valid template")
+        .progress_chars("=> "),
+    );
+    let mut stats = ReplayStats::default();
+    let began = Instant::now();
+    let mut replay_origin: Option<u64> = None;
+    let mut last_time = None;
+    recording
+        .for_each(|log_time, message| -> Result<bool, String> {
+            if stop() {
+                return Ok(false);
+            }
+            if log_time < start_at || !wants(message.topic()) {
+                return Ok(true);
+            }
+            let origin = *replay_origin.get_or_insert(log_time);
+            let scale = match options.pace {
+                Pace::Original => Some(1.0),
+                Pace::Scaled(f) => Some(f),
+                Pace::Lockstep => None,
+            };
+            if let Some(scale) = scale {
+                let due =
+                    Duration::from_secs_f64(log_time.saturating_sub(origin) as f64 / 1e9 / scale);
+                if let Some(wait) = due.checked_sub(began.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+            }
+            publish(&p, &message).map_err(|e| format!("{e:#}"))?;
+            stats.published += 1;
+            last_time = Some(log_time);
+            bar.inc(1);
+            Ok(true)
+        })
+        .map_err(anyhow::Error::msg)?;
+    bar.finish_and_clear();
+    stats.wall_seconds = began.elapsed().as_secs_f64();
+    stats.recorded_seconds = match (replay_origin, last_time) {
+        (Some(a), Some(b)) => b.saturating_sub(a) as f64 / 1e9,
+        _ => 0.0,
+    };
+    stats.stopped_early = contents.damage.as_ref().map(|d| {
+        format!(
+            "{}: readable up to {} messages, then: {}",
+            recording.path().display(),
+            d.after_messages,
+            d.error
+        )
+    });
+    Ok(stats)
+}
+
+fn publish(p: &Publishers, message: &Message<'_>) -> anyhow::Result<()> {
+    fn send<T: iceoryx2::prelude::ZeroCopySend + std::fmt::Debug + Copy + 'static>(
+        publisher: &Option<Publisher<T>>,
+        m: T,
+    ) -> anyhow::Result<()> {
+        if let Some(publisher) = publisher {
+            publisher.send(m)?;
+        }
+        Ok(())
+    }
+    match *message {
+        Message::Frame(header, pixels) => {
+            if let Some(frames) = &p.frames {
+                frames
+                    .publish(header, |left, right| {
+                        let (l, r) = pixels.split_at(left.len());
+                        left.copy_from_slice(l);
+                        right.copy_from_slice(r);
+                        Ok::<(), std::convert::Infallible>(())
+                    })?
+                    .unwrap_or(());
+            }
+            Ok(())
+        }
+        Message::Detections(m) => send(&p.detections, m),
+        Message::JointState(m) => send(&p.joints, m),
+        Message::Sample(m) => send(&p.samples, m),
+        Message::Calibration(m) => send(&p.calibrations, m),
+        Message::Prediction(m) => send(&p.predictions, m),
+        Message::Located(m) => send(&p.located, m),
+    }
+}

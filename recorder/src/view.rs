@@ -1,0 +1,451 @@
+//! The viewing channels: Foxglove's well-known schemas (protobuf, from the
+//! `foxglove` SDK), derived from the lossless messages, so a recording or
+//! the live view opens in Foxglove as two images with overlays and a 3D
+//! scene. Lengths are in metres here, as Foxglove expects.
+
+use foxglove::Encode;
+use foxglove::messages::{
+    CameraCalibration, CircleAnnotation, Color, CubePrimitive, FrameTransform, FrameTransforms,
+    ImageAnnotations, Point2, PointsAnnotation, Pose, Quaternion, RawImage, SceneEntity,
+    SceneUpdate, SpherePrimitive, TextAnnotation, Timestamp, Vector3, points_annotation,
+};
+use geometry::{Camera, Rig};
+use messages::{CalibrationMsg, CameraMarkers, FrameHeader, JointState, LocatedObject, encoding};
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
+
+use crate::channels::Message;
+
+/// The world frame: the robot's base, in which the rig is given.
+pub const WORLD: &str = "world";
+const CAMERAS: [&str; 2] = ["camera_left", "camera_right"];
+const MIRROR_CAMERAS: [&str; 2] = ["mirror_camera_left", "mirror_camera_right"];
+/// Camera calibration and static transforms are repeated this often (in
+/// stamp time) so that a viewer joining late gets them.
+const REPEAT_NS: i64 = 1_000_000_000;
+
+/// A viewing channel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum ViewTopic {
+    /// `foxglove.RawImage` of camera 0 or 1.
+    Image(usize),
+    /// `foxglove.ImageAnnotations`: detected markers of camera 0 or 1.
+    Detections(usize),
+    /// `foxglove.ImageAnnotations`: predicted marker centres in camera 0 or 1.
+    Predictions(usize),
+    /// `foxglove.CameraCalibration` of camera 0 or 1.
+    CameraInfo(usize),
+    /// `foxglove.FrameTransforms`: cameras, mirror cameras, mirror, end effector.
+    Transforms,
+    /// `foxglove.SceneUpdate`: the mirror plane, the end effector, located objects.
+    Scene,
+}
+
+impl ViewTopic {
+    /// Every viewing channel.
+    pub const ALL: [ViewTopic; 10] = [
+        ViewTopic::Image(0),
+        ViewTopic::Image(1),
+        ViewTopic::Detections(0),
+        ViewTopic::Detections(1),
+        ViewTopic::Predictions(0),
+        ViewTopic::Predictions(1),
+        ViewTopic::CameraInfo(0),
+        ViewTopic::CameraInfo(1),
+        ViewTopic::Transforms,
+        ViewTopic::Scene,
+    ];
+
+    /// The MCAP / WebSocket topic.
+    pub fn name(self) -> String {
+        let side = |k: usize| if k == 0 { "left" } else { "right" };
+        match self {
+            ViewTopic::Image(k) => format!("/camera/{}/image", side(k)),
+            ViewTopic::Detections(k) => format!("/camera/{}/detections", side(k)),
+            ViewTopic::Predictions(k) => format!("/camera/{}/predictions", side(k)),
+            ViewTopic::CameraInfo(k) => format!("/camera/{}/calibration", side(k)),
+            ViewTopic::Transforms => "/tf".into(),
+            ViewTopic::Scene => "/scene".into(),
+        }
+    }
+
+    /// The Foxglove schema of the channel.
+    pub fn schema(self) -> foxglove::Schema {
+        match self {
+            ViewTopic::Image(_) => RawImage::get_schema(),
+            ViewTopic::Detections(_) | ViewTopic::Predictions(_) => ImageAnnotations::get_schema(),
+            ViewTopic::CameraInfo(_) => CameraCalibration::get_schema(),
+            ViewTopic::Transforms => FrameTransforms::get_schema(),
+            ViewTopic::Scene => SceneUpdate::get_schema(),
+        }
+        .expect("Foxglove's schema types carry their schema")
+    }
+
+    /// The message encoding (`protobuf`).
+    pub fn message_encoding() -> String {
+        RawImage::get_message_encoding()
+    }
+}
+
+/// One encoded viewing message.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewMessage {
+    /// Its channel.
+    pub topic: ViewTopic,
+    /// Log time, ns.
+    pub log_time: u64,
+    /// Protobuf bytes.
+    pub data: Vec<u8>,
+}
+
+fn encode(topic: ViewTopic, stamp_ns: i64, message: &impl Encode) -> ViewMessage {
+    let mut data = Vec::with_capacity(message.encoded_len().unwrap_or(256));
+    message
+        .encode(&mut data)
+        .expect("a Vec grows to fit the message");
+    ViewMessage {
+        topic,
+        log_time: crate::channels::log_time(stamp_ns),
+        data,
+    }
+}
+
+fn timestamp(stamp_ns: i64) -> Option<Timestamp> {
+    let ns = stamp_ns.max(0);
+    Some(Timestamp::new(
+        (ns / 1_000_000_000).min(u32::MAX as i64) as u32,
+        (ns % 1_000_000_000) as u32,
+    ))
+}
+
+fn color(r: f64, g: f64, b: f64, a: f64) -> Option<Color> {
+    Some(Color { r, g, b, a })
+}
+
+/// Markers seen directly are green, mirror-reversed ones magenta.
+fn marker_color(mirrored: bool) -> Option<Color> {
+    if mirrored {
+        color(1.0, 0.0, 1.0, 1.0)
+    } else {
+        color(0.1, 0.9, 0.2, 1.0)
+    }
+}
+
+fn metres(v: &nalgebra::Vector3<f64>) -> Option<Vector3> {
+    Some(Vector3 {
+        x: v.x / 1000.0,
+        y: v.y / 1000.0,
+        z: v.z / 1000.0,
+    })
+}
+
+fn quaternion(q: &UnitQuaternion<f64>) -> Option<Quaternion> {
+    Some(Quaternion {
+        x: q.i,
+        y: q.j,
+        z: q.k,
+        w: q.w,
+    })
+}
+
+/// World-from-camera transform of a camera; `None` if its rotation is not
+/// proper (Foxglove frames are right-handed).
+fn camera_transform(stamp_ns: i64, child: &str, camera: &Camera) -> Option<FrameTransform> {
+    let world_from_camera: Matrix3<f64> = camera.camera_from_world.transpose();
+    if world_from_camera.determinant() <= 0.0 {
+        return None;
+    }
+    let rotation =
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&world_from_camera));
+    Some(FrameTransform {
+        timestamp: timestamp(stamp_ns),
+        parent_frame_id: WORLD.into(),
+        child_frame_id: child.into(),
+        translation: metres(&camera.center),
+        rotation: quaternion(&rotation),
+    })
+}
+
+/// Builds the viewing messages from the lossless ones, keeping what later
+/// messages need (the rig, the latest calibration, what was last repeated).
+pub struct ViewBuilder {
+    rig: Option<Rig>,
+    joint_offsets: Vec<f64>,
+    last_repeat_ns: Option<i64>,
+    /// Whether raw images are derived from frames (they double the bytes).
+    pub images: bool,
+}
+
+impl ViewBuilder {
+    /// A builder for a pipeline with this rig, if known (camera
+    /// calibrations, camera frames and the arm need it).
+    pub fn new(rig: Option<Rig>) -> Self {
+        Self {
+            rig,
+            joint_offsets: Vec::new(),
+            last_repeat_ns: None,
+            images: true,
+        }
+    }
+
+    /// The viewing messages derived from one recorded message.
+    pub fn view(&mut self, message: &Message<'_>) -> Vec<ViewMessage> {
+        let stamp = message.stamp_ns();
+        let mut out = Vec::new();
+        if self
+            .last_repeat_ns
+            .is_none_or(|last| stamp - last >= REPEAT_NS || stamp < last)
+        {
+            self.last_repeat_ns = Some(stamp);
+            self.repeated(stamp, &mut out);
+        }
+        match message {
+            Message::Frame(header, pixels) if self.images => {
+                Self::images(header, pixels, &mut out);
+            }
+            Message::Frame(..) => {}
+            Message::Detections(d) => {
+                for k in 0..2 {
+                    out.push(encode(
+                        ViewTopic::Detections(k),
+                        d.stamp_ns,
+                        &detections(d.stamp_ns, &d.cameras[k]),
+                    ));
+                }
+            }
+            Message::Prediction(p) => {
+                for k in 0..2 {
+                    let [x, y] = p.predicted_pixels[k];
+                    let annotations = ImageAnnotations {
+                        timestamp: timestamp(p.stamp_ns),
+                        circles: vec![CircleAnnotation {
+                            timestamp: timestamp(p.stamp_ns),
+                            position: Some(Point2 { x, y }),
+                            diameter: 14.0,
+                            thickness: 2.0,
+                            fill_color: color(0.0, 0.0, 0.0, 0.0),
+                            outline_color: color(1.0, 0.85, 0.0, 1.0),
+                            metadata: vec![],
+                        }],
+                        texts: vec![TextAnnotation {
+                            timestamp: timestamp(p.stamp_ns),
+                            position: Some(Point2 {
+                                x: x + 9.0,
+                                y: y + 14.0,
+                            }),
+                            text: format!("predicted, {:.1} px", p.error_px),
+                            font_size: 12.0,
+                            text_color: color(1.0, 0.85, 0.0, 1.0),
+                            background_color: color(0.0, 0.0, 0.0, 0.5),
+                            metadata: vec![],
+                        }],
+                        ..Default::default()
+                    };
+                    out.push(encode(ViewTopic::Predictions(k), p.stamp_ns, &annotations));
+                }
+            }
+            Message::Calibration(c) => self.calibration(c, &mut out),
+            Message::JointState(js) => self.arm(js, &mut out),
+            Message::Located(l) => out.push(encode(ViewTopic::Scene, l.stamp_ns, &located(l))),
+            Message::Sample(_) => {}
+        }
+        out
+    }
+
+    fn images(header: &FrameHeader, pixels: &[u8], out: &mut Vec<ViewMessage>) {
+        let encoding = if header.encoding == encoding::BGR8 {
+            "bgr8"
+        } else {
+            "mono8"
+        };
+        for (k, image) in pixels.chunks_exact(header.image_len()).take(2).enumerate() {
+            let raw = RawImage {
+                timestamp: timestamp(header.stamp_ns),
+                frame_id: CAMERAS[k].into(),
+                width: header.width,
+                height: header.height,
+                encoding: encoding.into(),
+                step: header.stride,
+                data: foxglove::bytes::Bytes::copy_from_slice(image),
+            };
+            out.push(encode(ViewTopic::Image(k), header.stamp_ns, &raw));
+        }
+    }
+
+    /// Camera calibrations and the head's camera frames.
+    fn repeated(&self, stamp: i64, out: &mut Vec<ViewMessage>) {
+        let Some(rig) = &self.rig else { return };
+        let mut transforms = FrameTransforms::default();
+        for k in 0..2 {
+            let c = &rig.cameras[k];
+            let i = &c.intrinsics;
+            let calibration = CameraCalibration {
+                timestamp: timestamp(stamp),
+                frame_id: CAMERAS[k].into(),
+                width: i.width,
+                height: i.height,
+                distortion_model: "plumb_bob".into(),
+                d: vec![i.k1, i.k2, 0.0, 0.0, 0.0],
+                k: vec![i.fx, i.skew, i.cx, 0.0, i.fy, i.cy, 0.0, 0.0, 1.0],
+                r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                p: vec![
+                    i.fx, i.skew, i.cx, 0.0, 0.0, i.fy, i.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+                ],
+            };
+            out.push(encode(ViewTopic::CameraInfo(k), stamp, &calibration));
+            transforms
+                .transforms
+                .extend(camera_transform(stamp, CAMERAS[k], c));
+        }
+        out.push(encode(ViewTopic::Transforms, stamp, &transforms));
+    }
+
+    fn calibration(&mut self, c: &CalibrationMsg, out: &mut Vec<ViewMessage>) {
+        self.joint_offsets =
+            c.joint_offsets[..(c.dof as usize).min(c.joint_offsets.len())].to_vec();
+        let Some(rig) = &self.rig else { return };
+        let mut transforms = FrameTransforms::default();
+        for k in 0..2 {
+            let camera = c.cameras[k].to_camera(rig.cameras[k].intrinsics);
+            transforms
+                .transforms
+                .extend(camera_transform(c.stamp_ns, MIRROR_CAMERAS[k], &camera));
+        }
+        let mut scene = SceneUpdate::default();
+        if c.has_plane != 0 {
+            let normal = nalgebra::Vector3::new(c.plane[0], c.plane[1], c.plane[2]);
+            let foot = -normal * c.plane[3];
+            let rotation = UnitQuaternion::rotation_between(&nalgebra::Vector3::z(), &normal)
+                .unwrap_or_else(|| {
+                    UnitQuaternion::from_axis_angle(
+                        &nalgebra::Vector3::x_axis(),
+                        std::f64::consts::PI,
+                    )
+                });
+            transforms.transforms.push(FrameTransform {
+                timestamp: timestamp(c.stamp_ns),
+                parent_frame_id: WORLD.into(),
+                child_frame_id: "mirror".into(),
+                translation: metres(&foot),
+                rotation: quaternion(&rotation),
+            });
+            scene.entities.push(SceneEntity {
+                timestamp: timestamp(c.stamp_ns),
+                frame_id: "mirror".into(),
+                id: "mirror".into(),
+                cubes: vec![CubePrimitive {
+                    pose: Some(Pose {
+                        position: Some(Vector3::default()),
+                        orientation: quaternion(&UnitQuaternion::identity()),
+                    }),
+                    size: Some(Vector3 {
+                        x: 0.6,
+                        y: 0.4,
+                        z: 0.002,
+                    }),
+                    color: color(0.6, 0.8, 1.0, 0.35),
+                }],
+                ..Default::default()
+            });
+        }
+        out.push(encode(ViewTopic::Transforms, c.stamp_ns, &transforms));
+        if !scene.entities.is_empty() {
+            out.push(encode(ViewTopic::Scene, c.stamp_ns, &scene));
+        }
+    }
+
+    /// The end effector from the joint state through the arm model (with
+    /// the calibrated joint offsets once there are any).
+    fn arm(&self, js: &JointState, out: &mut Vec<ViewMessage>) {
+        let Some(arm) = self.rig.as_ref().and_then(|r| r.arm.as_ref()) else {
+            return;
+        };
+        let mut offsets = vec![0.0; arm.dof()];
+        for (o, c) in offsets.iter_mut().zip(&self.joint_offsets) {
+            *o = *c;
+        }
+        let Ok(tip) = arm.end_effector(js.joints(), &offsets) else {
+            return;
+        };
+        let transforms = FrameTransforms {
+            transforms: vec![FrameTransform {
+                timestamp: timestamp(js.stamp_ns),
+                parent_frame_id: WORLD.into(),
+                child_frame_id: "end_effector".into(),
+                translation: metres(&tip),
+                rotation: quaternion(&UnitQuaternion::identity()),
+            }],
+        };
+        out.push(encode(ViewTopic::Transforms, js.stamp_ns, &transforms));
+    }
+}
+
+fn detections(stamp_ns: i64, markers: &CameraMarkers) -> ImageAnnotations {
+    let mut a = ImageAnnotations {
+        timestamp: timestamp(stamp_ns),
+        ..Default::default()
+    };
+    for m in markers.iter() {
+        let mirrored = m.mirrored != 0;
+        a.points.push(PointsAnnotation {
+            timestamp: timestamp(stamp_ns),
+            r#type: points_annotation::Type::LineLoop as i32,
+            points: m
+                .corners
+                .chunks_exact(2)
+                .map(|c| Point2 { x: c[0], y: c[1] })
+                .collect(),
+            outline_color: marker_color(mirrored),
+            thickness: 2.0,
+            ..Default::default()
+        });
+        a.circles.push(CircleAnnotation {
+            timestamp: timestamp(stamp_ns),
+            position: Some(Point2 {
+                x: m.center[0],
+                y: m.center[1],
+            }),
+            diameter: 6.0,
+            thickness: 2.0,
+            fill_color: marker_color(mirrored),
+            outline_color: marker_color(mirrored),
+            metadata: vec![],
+        });
+        a.texts.push(TextAnnotation {
+            timestamp: timestamp(stamp_ns),
+            position: Some(Point2 {
+                x: m.corners[0],
+                y: m.corners[1] - 6.0,
+            }),
+            text: format!("{}{}", m.id, if mirrored { " (mirrored)" } else { "" }),
+            font_size: 12.0,
+            text_color: marker_color(mirrored),
+            background_color: color(0.0, 0.0, 0.0, 0.5),
+            metadata: vec![],
+        });
+    }
+    a
+}
+
+fn located(l: &LocatedObject) -> SceneUpdate {
+    SceneUpdate {
+        deletions: vec![],
+        entities: vec![SceneEntity {
+            timestamp: timestamp(l.stamp_ns),
+            frame_id: WORLD.into(),
+            id: format!("object {}", l.id),
+            spheres: vec![SpherePrimitive {
+                pose: Some(Pose {
+                    position: metres(&nalgebra::Vector3::from(l.position)),
+                    orientation: quaternion(&UnitQuaternion::identity()),
+                }),
+                size: Some(Vector3 {
+                    x: 0.03,
+                    y: 0.03,
+                    z: 0.03,
+                }),
+                color: color(1.0, 0.5, 0.0, 0.9),
+            }],
+            ..Default::default()
+        }],
+    }
+}

@@ -1,0 +1,450 @@
+//! The writer thread: takes recorded messages from the IPC thread over two
+//! bounded crossbeam channels (small messages, frames), writes them and the
+//! viewing messages derived from them into one MCAP file, finishes a chunk
+//! at least once a second, and feeds the live view.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, Sender, bounded};
+use mcap::records::MessageHeader;
+
+use crate::channels::{MESSAGE_ENCODING, Message, SCHEMA_ENCODING, Topic};
+use crate::live_view::LiveView;
+use crate::view::{ViewBuilder, ViewMessage, ViewTopic};
+
+/// Chunk compression.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Compression {
+    /// Zstandard (default): the best ratio at camera rates.
+    #[default]
+    Zstd,
+    /// LZ4: faster, larger.
+    Lz4,
+    /// No compression.
+    None,
+}
+
+impl Compression {
+    fn mcap(self) -> Option<mcap::Compression> {
+        match self {
+            Compression::Zstd => Some(mcap::Compression::Zstd),
+            Compression::Lz4 => Some(mcap::Compression::Lz4),
+            Compression::None => None,
+        }
+    }
+}
+
+/// How the writer is set up.
+#[derive(Debug, Clone)]
+pub struct WriterOptions {
+    /// Chunk compression.
+    pub compression: Compression,
+    /// A chunk is finished when it holds this many bytes (uncompressed)...
+    pub chunk_bytes: u64,
+    /// ...or this long after the previous one, whichever comes first: a
+    /// killed recorder loses at most this much.
+    pub flush_every: Duration,
+    /// Frames waiting for the writer, at most (each one stereo frame).
+    pub frame_queue: usize,
+    /// Derive `foxglove.RawImage` viewing channels from frames.
+    pub view_images: bool,
+    /// `(name, entries)` metadata records.
+    pub metadata: Vec<(String, BTreeMap<String, String>)>,
+    /// Files to attach (name in the recording, path).
+    pub attachments: Vec<(String, PathBuf)>,
+}
+
+impl Default for WriterOptions {
+    fn default() -> Self {
+        Self {
+            compression: Compression::Zstd,
+            chunk_bytes: 8 << 20,
+            flush_every: Duration::from_secs(1),
+            frame_queue: 64,
+            view_images: true,
+            metadata: Vec::new(),
+            attachments: Vec::new(),
+        }
+    }
+}
+
+/// One message on its way to the writer: the exact bytes received.
+#[derive(Debug)]
+pub struct Entry {
+    /// Its topic.
+    pub topic: Topic,
+    /// Log time (the message stamp), ns.
+    pub log_time: u64,
+    /// When the recorder received it (CLOCK_MONOTONIC ns).
+    pub publish_time: u64,
+    /// The bytes.
+    pub data: Vec<u8>,
+}
+
+/// Counters shared between the IPC thread and the writer thread.
+#[derive(Debug, Default)]
+pub struct Counters {
+    /// Messages written per lossless topic, in [`Topic::ALL`] order.
+    pub written: [AtomicU64; 7],
+    /// Frames dropped because the writer's queue was full.
+    pub frames_dropped_queue_full: AtomicU64,
+    /// Frames the recorder never received (gaps in the frame sequence:
+    /// overwritten in shared memory before it could take them).
+    pub frames_missed: AtomicU64,
+    /// Messages that failed to decode (recorded anyway, not viewed).
+    pub undecodable: AtomicU64,
+    /// Bytes of message data written (lossless channels).
+    pub lossless_bytes: AtomicU64,
+    /// Bytes of message data written (viewing channels).
+    pub view_bytes: AtomicU64,
+    /// Chunks finished by the once-a-second flush.
+    pub timed_flushes: AtomicU64,
+}
+
+/// A summary of a finished recording.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RecordingSummary {
+    /// The file.
+    pub path: PathBuf,
+    /// Messages per lossless topic.
+    pub messages: BTreeMap<String, u64>,
+    /// See [`Counters::frames_dropped_queue_full`].
+    pub frames_dropped_queue_full: u64,
+    /// See [`Counters::frames_missed`].
+    pub frames_missed: u64,
+    /// See [`Counters::undecodable`].
+    pub undecodable: u64,
+    /// Message bytes on lossless channels.
+    pub lossless_bytes: u64,
+    /// Message bytes on viewing channels.
+    pub view_bytes: u64,
+    /// Size of the file.
+    pub file_bytes: u64,
+}
+
+/// The sending side, held by the IPC thread.
+pub struct RecorderHandle {
+    small: Sender<Entry>,
+    frames: Sender<Entry>,
+    drop_frames: bool,
+    /// Shared counters.
+    pub counters: Arc<Counters>,
+    failed: Arc<AtomicBool>,
+    thread: JoinHandle<Result<(), String>>,
+    path: PathBuf,
+}
+
+impl RecorderHandle {
+    /// Hands a message to the writer. Small messages wait for room; a frame
+    /// is dropped (and counted) when `drop_frames` and the queue is full.
+    /// Fails once the writer has stopped (its error is returned by
+    /// [`RecorderHandle::finish`]).
+    pub fn send(&self, entry: Entry) -> Result<(), ()> {
+        if self.failed.load(Ordering::Relaxed) {
+            return Err(());
+        }
+        if entry.topic == Topic::Frames {
+            if self.drop_frames {
+                match self.frames.try_send(entry) {
+                    Ok(()) => Ok(()),
+                    Err(crossbeam_channel::TrySendError::Full(_)) => {
+                        self.counters
+                            .frames_dropped_queue_full
+                            .fetch_add(1, Ordering::Relaxed);
+                        Ok(())
+                    }
+                    Err(crossbeam_channel::TrySendError::Disconnected(_)) => Err(()),
+                }
+            } else {
+                self.frames.send(entry).map_err(|_| ())
+            }
+        } else {
+            self.small.send(entry).map_err(|_| ())
+        }
+    }
+
+    /// Closes the queues, waits for the writer to write everything and
+    /// finish the file (summary and index), and returns the summary.
+    pub fn finish(self) -> Result<RecordingSummary, String> {
+        drop(self.small);
+        drop(self.frames);
+        self.thread
+            .join()
+            .map_err(|_| "the writer thread panicked".to_string())??;
+        let c = &self.counters;
+        Ok(RecordingSummary {
+            messages: Topic::ALL
+                .iter()
+                .zip(&c.written)
+                .map(|(t, n)| (t.name().to_string(), n.load(Ordering::Relaxed)))
+                .collect(),
+            frames_dropped_queue_full: c.frames_dropped_queue_full.load(Ordering::Relaxed),
+            frames_missed: c.frames_missed.load(Ordering::Relaxed),
+            undecodable: c.undecodable.load(Ordering::Relaxed),
+            lossless_bytes: c.lossless_bytes.load(Ordering::Relaxed),
+            view_bytes: c.view_bytes.load(Ordering::Relaxed),
+            file_bytes: std::fs::metadata(&self.path).map_or(0, |m| m.len()),
+            path: self.path,
+        })
+    }
+}
+
+/// Creates `path` and starts the writer thread. `drop_frames` selects the
+/// frame policy when the writer falls behind: drop (live) or wait (replay).
+pub fn start(
+    path: &Path,
+    options: WriterOptions,
+    view: ViewBuilder,
+    live: Option<LiveView>,
+    drop_frames: bool,
+) -> Result<RecorderHandle, String> {
+    let file = File::create(path).map_err(|e| format!("{}: cannot create: {e}", path.display()))?;
+    let mut mcap = Mcap::new(BufWriter::with_capacity(1 << 20, file), &options)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    for (name, path) in &options.attachments {
+        mcap.attach(name, path)?;
+    }
+    for (name, entries) in &options.metadata {
+        mcap.writer
+            .write_metadata(&mcap::records::Metadata {
+                name: name.clone(),
+                metadata: entries.clone(),
+            })
+            .map_err(|e| format!("writing metadata {name}: {e}"))?;
+    }
+    let (small_tx, small_rx) = bounded::<Entry>(16 * 1024);
+    let (frames_tx, frames_rx) = bounded::<Entry>(options.frame_queue.max(1));
+    let counters = Arc::new(Counters::default());
+    let failed = Arc::new(AtomicBool::new(false));
+    let thread = {
+        let counters = counters.clone();
+        let failed = failed.clone();
+        let path = path.to_path_buf();
+        let mut view = view;
+        view.images = options.view_images;
+        std::thread::Builder::new()
+            .name("mcap-writer".into())
+            .spawn(move || {
+                let result = write_loop(
+                    &mut mcap, small_rx, frames_rx, &options, view, live, &counters,
+                )
+                .and_then(|()| mcap.finish())
+                .map_err(|e| format!("{}: {e}", path.display()));
+                if result.is_err() {
+                    failed.store(true, Ordering::Relaxed);
+                }
+                result
+            })
+            .map_err(|e| format!("cannot start the writer thread: {e}"))?
+    };
+    Ok(RecorderHandle {
+        small: small_tx,
+        frames: frames_tx,
+        drop_frames,
+        counters,
+        failed,
+        thread,
+        path: path.to_path_buf(),
+    })
+}
+
+fn write_loop(
+    mcap: &mut Mcap,
+    small: Receiver<Entry>,
+    frames: Receiver<Entry>,
+    options: &WriterOptions,
+    mut view: ViewBuilder,
+    live: Option<LiveView>,
+    counters: &Counters,
+) -> Result<(), String> {
+    let mut last_flush = Instant::now();
+    let (mut small_open, mut frames_open) = (true, true);
+    while small_open || frames_open {
+        // Small messages first: they are never dropped and cheap to write.
+        let entry = match small.try_recv() {
+            Ok(e) => Some(e),
+            Err(_) => {
+                let wait = options
+                    .flush_every
+                    .saturating_sub(last_flush.elapsed())
+                    .max(Duration::from_millis(1));
+                let mut sel = crossbeam_channel::Select::new();
+                let si = small_open.then(|| sel.recv(&small));
+                let fi = frames_open.then(|| sel.recv(&frames));
+                match sel.select_timeout(wait) {
+                    Ok(op) if Some(op.index()) == si => match op.recv(&small) {
+                        Ok(e) => Some(e),
+                        Err(_) => {
+                            small_open = false;
+                            None
+                        }
+                    },
+                    Ok(op) if Some(op.index()) == fi => match op.recv(&frames) {
+                        Ok(e) => Some(e),
+                        Err(_) => {
+                            frames_open = false;
+                            None
+                        }
+                    },
+                    Ok(_) => None,
+                    Err(_) => None,
+                }
+            }
+        };
+        if let Some(entry) = entry {
+            mcap.write_entry(&entry, &mut view, live.as_ref(), counters)?;
+        }
+        if last_flush.elapsed() >= options.flush_every {
+            mcap.writer.flush().map_err(|e| e.to_string())?;
+            counters.timed_flushes.fetch_add(1, Ordering::Relaxed);
+            last_flush = Instant::now();
+        }
+    }
+    Ok(())
+}
+
+/// The MCAP writer with every channel registered up front.
+struct Mcap {
+    writer: mcap::Writer<BufWriter<File>>,
+    lossless: HashMap<Topic, (u16, u32)>,
+    views: HashMap<ViewTopic, (u16, u32)>,
+}
+
+impl Mcap {
+    fn new(out: BufWriter<File>, options: &WriterOptions) -> Result<Self, mcap::McapError> {
+        let mut writer = mcap::WriteOptions::new()
+            .compression(options.compression.mcap())
+            .chunk_size(Some(options.chunk_bytes))
+            .profile("")
+            .library(format!("recorder {}", env!("CARGO_PKG_VERSION")))
+            .create(out)?;
+        let mut lossless = HashMap::new();
+        for t in Topic::ALL {
+            let schema =
+                writer.add_schema(&t.layout().type_name, SCHEMA_ENCODING, &t.schema_data())?;
+            let id = writer.add_channel(schema, t.name(), MESSAGE_ENCODING, &BTreeMap::new())?;
+            lossless.insert(t, (id, 0));
+        }
+        let mut views = HashMap::new();
+        for v in ViewTopic::ALL {
+            let s = v.schema();
+            let schema = writer.add_schema(&s.name, &s.encoding, &s.data)?;
+            let id = writer.add_channel(
+                schema,
+                &v.name(),
+                &ViewTopic::message_encoding(),
+                &BTreeMap::new(),
+            )?;
+            views.insert(v, (id, 0));
+        }
+        Ok(Self {
+            writer,
+            lossless,
+            views,
+        })
+    }
+
+    fn attach(&mut self, name: &str, path: &Path) -> Result<(), String> {
+        let data =
+            std::fs::read(path).map_err(|e| format!("{}: cannot attach: {e}", path.display()))?;
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        self.writer
+            .attach(&mcap::Attachment {
+                log_time: now,
+                create_time: now,
+                name: name.into(),
+                media_type: if name.ends_with(".toml") {
+                    "application/toml"
+                } else if name.ends_with(".csv") {
+                    "text/csv"
+                } else {
+                    "application/octet-stream"
+                }
+                .into(),
+                data: data.into(),
+            })
+            .map_err(|e| format!("attaching {name}: {e}"))
+    }
+
+    fn write_entry(
+        &mut self,
+        entry: &Entry,
+        view: &mut ViewBuilder,
+        live: Option<&LiveView>,
+        counters: &Counters,
+    ) -> Result<(), String> {
+        let (id, seq) = self.lossless.get_mut(&entry.topic).expect("registered");
+        *seq += 1;
+        self.writer
+            .write_to_known_channel(
+                &MessageHeader {
+                    channel_id: *id,
+                    sequence: *seq,
+                    log_time: entry.log_time,
+                    publish_time: entry.publish_time,
+                },
+                &entry.data,
+            )
+            .map_err(|e| e.to_string())?;
+        let k = Topic::ALL
+            .iter()
+            .position(|t| *t == entry.topic)
+            .expect("listed");
+        counters.written[k].fetch_add(1, Ordering::Relaxed);
+        counters
+            .lossless_bytes
+            .fetch_add(entry.data.len() as u64, Ordering::Relaxed);
+        match Message::decode(entry.topic, &entry.data) {
+            Ok(message) => {
+                for v in view.view(&message) {
+                    self.write_view(&v, entry.publish_time, counters)?;
+                    if let Some(live) = live {
+                        live.log(&v);
+                    }
+                }
+            }
+            Err(_) => {
+                counters.undecodable.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        Ok(())
+    }
+
+    fn write_view(
+        &mut self,
+        v: &ViewMessage,
+        publish_time: u64,
+        counters: &Counters,
+    ) -> Result<(), String> {
+        let (id, seq) = self.views.get_mut(&v.topic).expect("registered");
+        *seq += 1;
+        counters
+            .view_bytes
+            .fetch_add(v.data.len() as u64, Ordering::Relaxed);
+        self.writer
+            .write_to_known_channel(
+                &MessageHeader {
+                    channel_id: *id,
+                    sequence: *seq,
+                    log_time: v.log_time,
+                    publish_time,
+                },
+                &v.data,
+            )
+            .map_err(|e| e.to_string())
+    }
+
+    fn finish(&mut self) -> Result<(), String> {
+        self.writer.finish().map_err(|e| e.to_string())?;
+        Ok(())
+    }
+}
