@@ -147,14 +147,15 @@ fn interrupt(child: &mut Child) {
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
 }
 
+/// Stops the stages sources first (they were started consumers first), each
+/// after the previous has exited, so every consumer takes what its sources
+/// sent before it stops.
 fn stop(stages: &mut [Stage]) {
-    for s in stages.iter_mut() {
+    for s in stages.iter_mut().rev() {
         interrupt(&mut s.child);
-    }
-    let deadline = Instant::now() + Duration::from_secs(3);
-    for s in stages.iter_mut() {
+        let deadline = Instant::now() + Duration::from_secs(3);
         while Instant::now() < deadline && matches!(s.child.try_wait(), Ok(None)) {
-            std::thread::sleep(Duration::from_millis(20));
+            std::thread::sleep(Duration::from_millis(10));
         }
         let _ = s.child.kill();
         let _ = s.child.wait();

@@ -90,7 +90,7 @@ impl Capture {
                 publish_time: log_time(now_ns()),
                 data,
             })
-            .map_err(|()| "the writer stopped".to_string())?;
+            .map_err(|e| e.to_string())?;
             n += 1;
         }
         Ok(n)
@@ -111,7 +111,7 @@ fn drain_small<T: bytemuck::Pod + std::fmt::Debug + iceoryx2::prelude::ZeroCopyS
             publish_time: log_time(now_ns()),
             data: bytes_of(&m).to_vec(),
         })
-        .map_err(|()| "the writer stopped".to_string())?;
+        .map_err(|e| e.to_string())?;
         n += 1;
     }
     Ok(n)

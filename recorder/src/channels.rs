@@ -122,6 +122,8 @@ impl Topic {
 }
 
 /// One recorded message, decoded.
+// Decoded on the stack one at a time; boxing the detections would allocate per message.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Message<'a> {
     /// A stereo frame: header and both images.

@@ -4,7 +4,11 @@
 //! a truncated or corrupted file), which is reported, never a panic.
 
 use std::collections::BTreeMap;
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
+
+use mcap::records::Record;
+use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use crate::channels::{Layout, MESSAGE_ENCODING, Message, Topic};
 
@@ -34,6 +38,9 @@ pub struct Contents {
     pub time_range: Option<(u64, u64)>,
     /// Messages on other channels (viewing channels).
     pub other_messages: u64,
+    /// Lossless messages that do not decode (malformed when published),
+    /// skipped.
+    pub undecodable: u64,
     /// Set when the file ends early or is corrupt.
     pub damage: Option<Damage>,
 }
@@ -45,21 +52,23 @@ impl Contents {
     }
 }
 
-/// A recording in memory, checked.
+/// A recording, checked. Reading streams from the file: memory stays at
+/// about one chunk whatever the file's size.
 pub struct Recording {
     path: PathBuf,
-    bytes: Vec<u8>,
     contents: Contents,
 }
 
 const MAGIC: &[u8] = b"\x89MCAP0\r\n";
-
-fn options() -> enumset::EnumSet<mcap::read::Options> {
-    mcap::read::Options::ValidateChunkCrcs.into()
-}
+/// The largest record or decompressed chunk accepted: a corrupt length
+/// field must not make the reader allocate without bound.
+const RECORD_LIMIT: usize = 512 << 20;
 
 /// Which lossless topic a channel carries, after checking its schema.
-fn lossless_topic(channel: &mcap::Channel<'_>) -> Result<Option<Topic>, String> {
+fn lossless_topic(
+    channel: &mcap::records::Channel,
+    schema: Option<&(String, Vec<u8>)>,
+) -> Result<Option<Topic>, String> {
     if channel.message_encoding != MESSAGE_ENCODING {
         return Ok(None);
     }
@@ -70,10 +79,7 @@ fn lossless_topic(channel: &mcap::Channel<'_>) -> Result<Option<Topic>, String> 
         ));
     };
     let expected = topic.layout();
-    let found: Option<Layout> = channel
-        .schema
-        .as_ref()
-        .and_then(|s| serde_json::from_slice(&s.data).ok());
+    let found: Option<Layout> = schema.and_then(|(_, data)| serde_json::from_slice(data).ok());
     match found {
         Some(found) if found.type_name == expected.type_name && found.size == expected.size => {
             Ok(Some(topic))
@@ -91,17 +97,15 @@ fn lossless_topic(channel: &mcap::Channel<'_>) -> Result<Option<Topic>, String> 
 }
 
 impl Recording {
-    /// Reads and scans `path`.
+    /// Opens and scans `path`.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, ReadError> {
         let path = path.as_ref().to_path_buf();
         let fail = |message: String| ReadError {
             path: path.display().to_string(),
             message,
         };
-        let bytes = std::fs::read(&path).map_err(|e| fail(format!("cannot read: {e}")))?;
         let mut recording = Self {
             path: path.clone(),
-            bytes,
             contents: Contents::default(),
         };
         let mut contents = Contents::default();
@@ -115,7 +119,10 @@ impl Recording {
                     });
                     Ok::<_, String>(true)
                 },
-                |n| contents.other_messages = n,
+                |other, undecodable| {
+                    contents.other_messages = other;
+                    contents.undecodable = undecodable;
+                },
                 |damage| contents.damage = Some(damage),
             )
             .map_err(fail)?;
@@ -139,59 +146,104 @@ impl Recording {
         &self,
         f: impl FnMut(u64, Message<'_>) -> Result<bool, E>,
     ) -> Result<(), E> {
-        self.visit(f, |_| {}, |_| {})
+        self.visit(f, |_, _| {}, |_| {})
     }
 
     fn visit<E: From<String>>(
         &self,
         mut f: impl FnMut(u64, Message<'_>) -> Result<bool, E>,
-        others: impl FnOnce(u64),
+        others: impl FnOnce(u64, u64),
         on_damage: impl FnOnce(Damage),
     ) -> Result<(), E> {
-        if !self.bytes.starts_with(MAGIC) {
+        let mut file = std::fs::File::open(&self.path).map_err(|e| format!("cannot read: {e}"))?;
+        let mut magic = [0u8; 8];
+        let starts_right = file.read_exact(&mut magic).is_ok() && magic == MAGIC;
+        if !starts_right {
             return Err(
                 String::from("not an MCAP file (it does not start with the MCAP magic)").into(),
             );
         }
-        let stream = mcap::MessageStream::new_with_options(&self.bytes, options())
-            .map_err(|e| format!("not a readable MCAP file: {e}"))?;
-        let (mut read, mut other) = (0u64, 0u64);
-        let mut topics: BTreeMap<u16, Option<Topic>> = BTreeMap::new();
-        for item in stream {
-            let message = match item {
-                Ok(m) => m,
+        file.seek(SeekFrom::Start(0))
+            .map_err(|e| format!("cannot read: {e}"))?;
+        let mut reader = LinearReader::new_with_options(
+            LinearReaderOptions::default()
+                .with_prevalidate_chunk_crcs(true)
+                .with_record_length_limit(RECORD_LIMIT),
+        );
+        let (mut read, mut other, mut undecodable) = (0u64, 0u64, 0u64);
+        let mut schemas: BTreeMap<u16, (String, Vec<u8>)> = BTreeMap::new();
+        let mut channels: BTreeMap<u16, Option<Topic>> = BTreeMap::new();
+        let mut damage = None;
+        while let Some(event) = reader.next_event() {
+            let event = match event {
+                Ok(e) => e,
                 Err(e) => {
-                    on_damage(Damage {
-                        after_messages: read,
-                        error: e.to_string(),
-                    });
+                    damage = Some(e.to_string());
                     break;
                 }
             };
-            let topic = match topics.get(&message.channel.id) {
-                Some(t) => *t,
-                None => {
-                    let t = lossless_topic(&message.channel)?;
-                    topics.insert(message.channel.id, t);
-                    t
+            let (opcode, data) = match event {
+                LinearReadEvent::ReadRequest(need) => {
+                    let n = file
+                        .read(reader.insert(need))
+                        .map_err(|e| format!("cannot read: {e}"))?;
+                    if n == 0 {
+                        damage = Some("the file ends in the middle of a record".into());
+                        break;
+                    }
+                    reader.notify_read(n);
+                    continue;
+                }
+                LinearReadEvent::Record { opcode, data } => (opcode, data),
+            };
+            let record = match mcap::parse_record(opcode, data) {
+                Ok(r) => r,
+                Err(e) => {
+                    damage = Some(e.to_string());
+                    break;
                 }
             };
-            let Some(topic) = topic else {
-                other += 1;
-                continue;
-            };
-            let decoded = Message::decode(topic, &message.data).map_err(|e| {
-                format!(
-                    "message {} on `{}`: {e}",
-                    message.sequence, message.channel.topic
-                )
-            })?;
-            read += 1;
-            if !f(message.log_time, decoded)? {
-                break;
+            match record {
+                Record::Schema { header, data } => {
+                    schemas.insert(header.id, (header.name, data.into_owned()));
+                }
+                Record::Channel(channel) => {
+                    let topic = lossless_topic(&channel, schemas.get(&channel.schema_id))?;
+                    channels.insert(channel.id, topic);
+                }
+                Record::Message { header, data } => {
+                    let Some(topic) = channels.get(&header.channel_id) else {
+                        damage = Some(format!(
+                            "message {} on channel {} that was never declared",
+                            header.sequence, header.channel_id
+                        ));
+                        break;
+                    };
+                    let Some(topic) = *topic else {
+                        other += 1;
+                        continue;
+                    };
+                    // A malformed message recorded as published (a frame whose
+                    // header does not match its size) is counted and skipped.
+                    let Ok(decoded) = Message::decode(topic, &data) else {
+                        undecodable += 1;
+                        continue;
+                    };
+                    read += 1;
+                    if !f(header.log_time, decoded)? {
+                        break;
+                    }
+                }
+                _ => {}
             }
         }
-        others(other);
+        if let Some(error) = damage {
+            on_damage(Damage {
+                after_messages: read,
+                error,
+            });
+        }
+        others(other, undecodable);
         Ok(())
     }
 }

@@ -116,21 +116,39 @@ fn subscriber_count(bus: &Bus, topic: Topic) -> Result<usize, messages::BusError
     }
 }
 
-/// Replays `recording` onto pipeline `prefix`. `stop` is polled between
+/// The lossless services of a replay, created before anything else.
+pub struct ReplayBus {
+    bus: Bus,
+    _services: messages::OpenServices,
+}
+
+impl ReplayBus {
+    /// Creates every service of `prefix` lossless. Do this before the
+    /// stages start: they inherit the setting.
+    pub fn create(prefix: &str) -> anyhow::Result<Self> {
+        let bus = Bus::new(prefix, "replay")?.lossless();
+        let services = bus.open_all().map_err(|e| {
+            anyhow::anyhow!(
+                "{e} (replay must create the services of prefix `{prefix}` before the stages \
+                 start; is a live pipeline using this prefix?)"
+            )
+        })?;
+        Ok(Self {
+            bus,
+            _services: services,
+        })
+    }
+}
+
+/// Replays `recording` onto the replay bus. `stop` is polled between
 /// messages (Ctrl-C).
 pub fn replay(
+    replay_bus: &ReplayBus,
     recording: &Recording,
-    prefix: &str,
     options: &ReplayOptions,
     stop: &dyn Fn() -> bool,
 ) -> anyhow::Result<ReplayStats> {
-    let bus = Bus::new(prefix, "replay")?.lossless();
-    let _services = bus.open_all().map_err(|e| {
-        anyhow::anyhow!(
-            "{e} (replay must create the services of prefix `{prefix}` before the stages start; \
-             is a live pipeline using this prefix?)"
-        )
-    })?;
+    let bus = &replay_bus.bus;
     let wants = |t: Topic| options.topics.contains(&t);
     let p = Publishers {
         frames: if wants(Topic::Frames) {
@@ -162,7 +180,7 @@ pub fn replay(
     };
     let waiting = Instant::now();
     for &t in &options.topics {
-        while subscriber_count(&bus, t)? < options.wait_subscribers {
+        while subscriber_count(bus, t)? < options.wait_subscribers {
             if stop() {
                 anyhow::bail!("interrupted while waiting for subscribers");
             }
@@ -170,7 +188,7 @@ pub fn replay(
                 anyhow::bail!(
                     "topic `{}` has {} subscribers after {:.0} s, waiting for {}",
                     t.name(),
-                    subscriber_count(&bus, t)?,
+                    subscriber_count(bus, t)?,
                     options.wait_timeout.as_secs_f64(),
                     options.wait_subscribers
                 );

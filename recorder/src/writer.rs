@@ -129,6 +129,11 @@ pub struct RecordingSummary {
     pub file_bytes: u64,
 }
 
+/// The writer thread has stopped (its error comes from [`RecorderHandle::finish`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the writer stopped")]
+pub struct WriterStopped;
+
 /// The sending side, held by the IPC thread.
 pub struct RecorderHandle {
     small: Sender<Entry>,
@@ -146,9 +151,9 @@ impl RecorderHandle {
     /// is dropped (and counted) when `drop_frames` and the queue is full.
     /// Fails once the writer has stopped (its error is returned by
     /// [`RecorderHandle::finish`]).
-    pub fn send(&self, entry: Entry) -> Result<(), ()> {
+    pub fn send(&self, entry: Entry) -> Result<(), WriterStopped> {
         if self.failed.load(Ordering::Relaxed) {
-            return Err(());
+            return Err(WriterStopped);
         }
         if entry.topic == Topic::Frames {
             if self.drop_frames {
@@ -160,13 +165,13 @@ impl RecorderHandle {
                             .fetch_add(1, Ordering::Relaxed);
                         Ok(())
                     }
-                    Err(crossbeam_channel::TrySendError::Disconnected(_)) => Err(()),
+                    Err(crossbeam_channel::TrySendError::Disconnected(_)) => Err(WriterStopped),
                 }
             } else {
-                self.frames.send(entry).map_err(|_| ())
+                self.frames.send(entry).map_err(|_| WriterStopped)
             }
         } else {
-            self.small.send(entry).map_err(|_| ())
+            self.small.send(entry).map_err(|_| WriterStopped)
         }
     }
 

@@ -11,7 +11,7 @@ use anyhow::{Result, bail};
 use clap::Parser;
 use recorder::channels::Topic;
 use recorder::reader::Recording;
-use recorder::replay::{Pace, ReplayOptions, replay};
+use recorder::replay::{Pace, ReplayBus, ReplayOptions, replay};
 
 /// Publish a recording back onto a pipeline's topics.
 ///
@@ -74,6 +74,11 @@ fn topics_of(args: &Args) -> Result<Vec<Topic>> {
 
 fn run(args: Args) -> Result<()> {
     let topics = topics_of(&args)?;
+    let bus = ReplayBus::create(&args.prefix)?;
+    tracing::info!(
+        prefix = args.prefix,
+        "services created; start the stages to re-run"
+    );
     let recording = Recording::open(&args.file)?;
     let contents = recording.contents();
     if let Some(d) = &contents.damage {
@@ -105,9 +110,7 @@ fn run(args: Args) -> Result<()> {
         wait_timeout: Duration::from_secs_f64(args.wait_timeout.max(0.0)),
         progress: std::io::stderr().is_terminal(),
     };
-    let stats = replay(&recording, &args.prefix, &options, &|| {
-        stop.load(Ordering::SeqCst)
-    })?;
+    let stats = replay(&bus, &recording, &options, &|| stop.load(Ordering::SeqCst))?;
     tracing::info!(
         published = stats.published,
         recorded_s = stats.recorded_seconds,
