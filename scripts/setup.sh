@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Installs what the workspace needs on a fresh Debian 12 machine: OpenCV 4.6
-# with the contrib aruco module, and clang for the opencv crate's bindings.
+# with the contrib aruco module, clang for the opencv crate's bindings, and
+# Python with venv for the tests' independent MCAP reader.
 # Does nothing when everything is already there.
 set -euo pipefail
 
-packages=(pkg-config clang libclang-dev libopencv-dev libopencv-contrib-dev)
+packages=(pkg-config clang libclang-dev libopencv-dev libopencv-contrib-dev python3 python3-venv)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -4,6 +4,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
+# The independent MCAP reader and the official Foxglove schemas, for the recording tests.
+if [ ! -x target/pyenv/bin/python ]; then
+    python3 -m venv target/pyenv
+fi
+target/pyenv/bin/pip install --quiet --disable-pip-version-check \
+    "mcap==1.6.*" "foxglove-schemas-protobuf==0.4.*"
 
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets -- -D warnings

@@ -66,17 +66,22 @@ pub fn now_ns() -> i64 {
     ts.tv_sec * 1_000_000_000 + ts.tv_nsec
 }
 
-/// Runs a stage's `main`: logs to stderr (`RUST_LOG`, default `info`), then
-/// maps an error to one line `<name>: error: ...` and exit code 1.
-pub fn stage_main(name: &str, run: impl FnOnce() -> anyhow::Result<()>) -> std::process::ExitCode {
+/// Logs to stderr, filtered by `RUST_LOG` (default `info`), in colour only
+/// on a terminal (stage logs usually go to a file, `stages.log`).
+pub fn init_logging() {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
         .with_writer(std::io::stderr)
-        // Stage logs usually go to a file (stages.log): colour only on a terminal.
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
+}
+
+/// Runs a stage's `main`: logs to stderr (`RUST_LOG`, default `info`), then
+/// maps an error to one line `<name>: error: ...` and exit code 1.
+pub fn stage_main(name: &str, run: impl FnOnce() -> anyhow::Result<()>) -> std::process::ExitCode {
+    init_logging();
     match run() {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

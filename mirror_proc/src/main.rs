@@ -1,11 +1,6 @@
 //! `mirror_proc`: see `mirror_proc --help`.
 
 fn main() -> std::process::ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    messages::init_logging();
     mirror_proc::cli::main()
 }

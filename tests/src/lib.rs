@@ -25,6 +25,8 @@ pub fn stage_binaries() -> PathBuf {
                 "mirror_proc",
                 "-p",
                 "pipeline",
+                "-p",
+                "recorder",
             ])
             .status()
             .expect("cargo runs");

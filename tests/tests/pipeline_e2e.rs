@@ -1,50 +1,71 @@
-//! The real processes on the simulated scene: camera, tracker, kinematics
-//! and mirror stages over iceoryx2, started by the launcher.
+//! The real processes on the simulated scene: camera, tracker, kinematics,
+//! mirror stage and recorder over iceoryx2, started by the launcher; then
+//! replays of its recording.
 
+#[path = "pipeline_e2e/recording.rs"]
+mod recording;
+
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 
+/// One live run of the launcher (mirror 0, recorder on), shared by the
+/// tests of this binary.
+pub struct LiveRun {
+    /// The launcher's `--out`.
+    pub out: PathBuf,
+}
+
+pub fn live_run() -> &'static LiveRun {
+    static RUN: OnceLock<LiveRun> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let bins = stage_binaries();
+        // Kept for the whole test binary: the tests read its files.
+        let dir = tempfile::tempdir().unwrap().keep();
+        let config = dir.join("pipeline.toml");
+        std::fs::write(
+            &config,
+            "preset = \"nico\"\nmirrors = [0]\ntrain_poses = 12\ntest_poses = 5\ndirect_poses = 3\nmethod = \"joint+kinematics\"\n\
+             source = \"sim\"\nfps = 30.0\nmove_ms = 100\ndwell_ms = 250\nseed = 3\nmin_train = 8\n",
+        )
+        .unwrap();
+        let out = dir.join("out");
+        let child = Command::new(bins.join("pipeline"))
+            .args([
+                "--config",
+                config.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--prefix",
+                &unique_prefix("e2e"),
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut guard = KillOnDrop(child);
+        let started = Instant::now();
+        while guard.0.try_wait().unwrap().is_none() {
+            assert!(
+                started.elapsed() < Duration::from_secs(180),
+                "the pipeline did not finish in 3 minutes"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let status = guard.0.wait().unwrap();
+        let mut stderr = String::new();
+        std::io::Read::read_to_string(guard.0.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+        assert!(status.success(), "pipeline failed: {stderr}");
+        LiveRun { out }
+    })
+}
+
 #[test]
 fn live_pipeline_calibrates_against_the_simulators_truth() {
-    let bins = stage_binaries();
-    let dir = tempfile::tempdir().unwrap();
-    let config = dir.path().join("pipeline.toml");
-    std::fs::write(
-        &config,
-        "preset = \"nico\"\nmirrors = [0]\ntrain_poses = 12\ntest_poses = 5\ndirect_poses = 3\nmethod = \"joint+kinematics\"\n\
-         source = \"sim\"\nfps = 30.0\nmove_ms = 100\ndwell_ms = 250\nseed = 3\nmin_train = 8\n",
-    )
-    .unwrap();
-    let out = dir.path().join("out");
-    let child = Command::new(bins.join("pipeline"))
-        .args([
-            "--config",
-            config.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--prefix",
-            &unique_prefix("e2e"),
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut guard = KillOnDrop(child);
-    let started = Instant::now();
-    while guard.0.try_wait().unwrap().is_none() {
-        assert!(
-            started.elapsed() < Duration::from_secs(180),
-            "the pipeline did not finish in 3 minutes"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    let status = guard.0.wait().unwrap();
-    let mut stderr = String::new();
-    std::io::Read::read_to_string(guard.0.stderr.as_mut().unwrap(), &mut stderr).unwrap();
-    assert!(status.success(), "pipeline failed: {stderr}");
-
+    let out = &live_run().out;
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let placement = &report["placements"][0];

@@ -1,0 +1,395 @@
+//! The live run's recording: replayed into the stages it feeds, read by an
+//! independent MCAP reader, and written by a recorder killed mid-run.
+
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use recorder::channels::{Message, Topic, bytes_of};
+use recorder::reader::Recording;
+use tests::{KillOnDrop, stage_binaries, unique_prefix};
+
+use super::live_run;
+
+/// Every lossless message of a recording, per topic, as bytes.
+fn lossless(path: &Path) -> BTreeMap<Topic, Vec<Vec<u8>>> {
+    let recording = Recording::open(path).unwrap();
+    let mut out: BTreeMap<Topic, Vec<Vec<u8>>> = BTreeMap::new();
+    recording
+        .for_each(|_, m| {
+            let bytes = match m {
+                Message::Frame(h, pixels) => [bytes_of(&h), pixels].concat(),
+                Message::Detections(x) => bytes_of(&x).to_vec(),
+                Message::JointState(x) => bytes_of(&x).to_vec(),
+                Message::Sample(x) => bytes_of(&x).to_vec(),
+                Message::Calibration(x) => bytes_of(&x).to_vec(),
+                Message::Prediction(x) => bytes_of(&x).to_vec(),
+                Message::Located(x) => bytes_of(&x).to_vec(),
+            };
+            out.entry(m.topic()).or_default().push(bytes);
+            Ok::<_, String>(true)
+        })
+        .unwrap();
+    out
+}
+
+fn recording_a() -> PathBuf {
+    live_run().out.join("mirror0/recording.mcap")
+}
+
+fn spawn(name: &str, args: &[&str], log: &Path) -> KillOnDrop {
+    let log = std::fs::File::create(log).unwrap();
+    KillOnDrop(
+        Command::new(stage_binaries().join(name))
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(log)
+            .spawn()
+            .unwrap(),
+    )
+}
+
+fn wait_exit(child: &mut Child, within: Duration, what: &str) -> std::process::ExitStatus {
+    let started = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        assert!(
+            started.elapsed() < within,
+            "{what} did not exit in {within:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn interrupt(child: &mut Child) {
+    Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+}
+
+/// Waits until `log` has a line containing `text`.
+fn wait_for_line(log: &Path, text: &str) {
+    let started = Instant::now();
+    loop {
+        if let Ok(f) = std::fs::File::open(log)
+            && BufReader::new(f)
+                .lines()
+                .any(|l| l.is_ok_and(|l| l.contains(text)))
+        {
+            return;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "no `{text}` in {}",
+            log.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Replays the live recording (`kind` frames or detections) in lockstep
+/// into fresh stages and a recorder; returns the new recording.
+fn replay_into(kind: &str, dir: &Path) -> PathBuf {
+    let a = recording_a();
+    let rig = live_run().out.join("mirror0/rig.toml");
+    let prefix = unique_prefix(&format!("replay_{kind}"));
+    let b = dir.join(format!("replay_{kind}.mcap"));
+    let replay_log = dir.join("replay.log");
+    let mut replay = spawn(
+        "replay",
+        &[
+            a.to_str().unwrap(),
+            "--prefix",
+            &prefix,
+            "--kind",
+            kind,
+            "--pace",
+            "lockstep",
+            "--wait-subscribers",
+            "2",
+            "--json",
+        ],
+        &replay_log,
+    );
+    wait_for_line(&replay_log, "services created");
+    let mut recorder = spawn(
+        "recorder",
+        &[
+            "--prefix",
+            &prefix,
+            "--out",
+            b.to_str().unwrap(),
+            "--no-drop",
+            "--rig",
+            rig.to_str().unwrap(),
+        ],
+        &dir.join("recorder.log"),
+    );
+    let mut tracker = (kind == "frames").then(|| {
+        spawn(
+            "tracker_proc",
+            &["run", "--prefix", &prefix],
+            &dir.join("tracker.log"),
+        )
+    });
+    let mut mirror = spawn(
+        "mirror_proc",
+        &[
+            "run",
+            "--prefix",
+            &prefix,
+            "--rig",
+            rig.to_str().unwrap(),
+            "--method",
+            "joint+kinematics",
+            "--min-train",
+            "8",
+            "--report",
+            dir.join("report.json").to_str().unwrap(),
+        ],
+        &dir.join("mirror.log"),
+    );
+    let started = Instant::now();
+    let status = wait_exit(&mut replay.0, Duration::from_secs(120), "replay");
+    let log = std::fs::read_to_string(&replay_log).unwrap();
+    assert!(status.success(), "replay failed: {log}");
+    let mut stats = String::new();
+    std::io::Read::read_to_string(replay.0.stdout.as_mut().unwrap(), &mut stats).unwrap();
+    let stats: serde_json::Value = serde_json::from_str(&stats).unwrap();
+    let recorded = stats["recorded_seconds"].as_f64().unwrap();
+    eprintln!(
+        "replay of {kind}: {} messages, {recorded:.1} s recorded in {:.1} s ({:.1}x real time)",
+        stats["published"],
+        stats["wall_seconds"].as_f64().unwrap(),
+        stats["recorded_seconds"].as_f64().unwrap() / stats["wall_seconds"].as_f64().unwrap()
+    );
+    assert!(
+        wait_exit(&mut mirror.0, Duration::from_secs(60), "mirror_proc").success(),
+        "mirror_proc failed: {}",
+        std::fs::read_to_string(dir.join("mirror.log")).unwrap()
+    );
+    // Stop in pipeline order: each stage takes what is waiting first.
+    if let Some(t) = tracker.as_mut() {
+        interrupt(&mut t.0);
+        assert!(wait_exit(&mut t.0, Duration::from_secs(20), "tracker_proc").success());
+    }
+    interrupt(&mut recorder.0);
+    assert!(
+        wait_exit(&mut recorder.0, Duration::from_secs(60), "recorder").success(),
+        "recorder failed: {}",
+        std::fs::read_to_string(dir.join("recorder.log")).unwrap()
+    );
+    eprintln!(
+        "replay of {kind} with stages: {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    b
+}
+
+fn assert_same(a: &BTreeMap<Topic, Vec<Vec<u8>>>, b: &BTreeMap<Topic, Vec<Vec<u8>>>, topic: Topic) {
+    let (x, y) = (&a[&topic], &b[&topic]);
+    assert!(
+        !x.is_empty(),
+        "{} is empty in the live recording",
+        topic.name()
+    );
+    assert_eq!(x.len(), y.len(), "{}: message counts differ", topic.name());
+    for (k, (p, q)) in x.iter().zip(y).enumerate() {
+        assert!(p == q, "{}: message {k} differs", topic.name());
+    }
+}
+
+#[test]
+fn record_a_equals_replay_of_its_frames_through_tracker_and_mirror_stage() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = lossless(&recording_a());
+    let b = lossless(&replay_into("frames", dir.path()));
+    for topic in Topic::ALL {
+        assert_same(&a, &b, topic);
+    }
+}
+
+#[test]
+fn record_a_equals_replay_of_its_detections_through_the_mirror_stage() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = lossless(&recording_a());
+    let b = lossless(&replay_into("detections", dir.path()));
+    assert!(!b.contains_key(&Topic::Frames));
+    for topic in Topic::ALL.into_iter().filter(|t| *t != Topic::Frames) {
+        assert_same(&a, &b, topic);
+    }
+}
+
+/// `key=N` from the last line of `log` that contains `what`.
+fn logged_count(log: &str, what: &str, key: &str) -> u64 {
+    let line = log
+        .lines()
+        .rev()
+        .find(|l| l.contains(what))
+        .unwrap_or_else(|| panic!("no `{what}` in the stage log"));
+    let at = line.find(&format!("{key}=")).unwrap() + key.len() + 1;
+    line[at..]
+        .split(|c: char| !c.is_ascii_digit())
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap()
+}
+
+fn python() -> PathBuf {
+    if let Ok(p) = std::env::var("MIRROR_TEST_PYTHON") {
+        return p.into();
+    }
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/pyenv/bin/python");
+    assert!(
+        venv.exists(),
+        "{} is missing: run scripts/test.sh once (it installs the PyPI `mcap` reader and the \
+         Foxglove schemas there), or set MIRROR_TEST_PYTHON",
+        venv.display()
+    );
+    venv
+}
+
+#[test]
+fn an_independent_reader_sees_every_published_message_and_the_foxglove_schemas_decode() {
+    let out = &live_run().out;
+    let log = std::fs::read_to_string(out.join("mirror0/stages.log")).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("mirror0/report.json")).unwrap())
+            .unwrap();
+    let expected = serde_json::json!({
+        "frames": logged_count(&log, "camera done", "frames"),
+        "detections": logged_count(&log, "tracker stopped", "frames"),
+        "joint_state": logged_count(&log, "pose plan done states", "states"),
+        "samples": report["counters"]["paired"],
+        "calibration": log.lines().filter(|l| l.contains(" calibration") && l.contains("revision=")).count(),
+        "predictions": report["test_samples"],
+    });
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/check_recording.py");
+    let output = Command::new(python())
+        .arg(&script)
+        .arg(recording_a())
+        .arg(expected.to_string())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&output.stdout).to_string()
+        + &String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{text}");
+    eprintln!("{text}");
+}
+
+#[test]
+fn a_recorder_killed_mid_run_leaves_every_message_up_to_its_last_flush() {
+    let dir = tempfile::tempdir().unwrap();
+    let a_path = recording_a();
+    let a = lossless(&a_path);
+    let prefix = unique_prefix("killed");
+    let killed = dir.path().join("killed.mcap");
+    let replay_log = dir.path().join("replay.log");
+    // Replay the live recording at its original pace into a recorder alone.
+    let mut replay = spawn(
+        "replay",
+        &[
+            a_path.to_str().unwrap(),
+            "--prefix",
+            &prefix,
+            "--kind",
+            "all",
+            "--pace",
+            "original",
+            "--wait-subscribers",
+            "1",
+        ],
+        &replay_log,
+    );
+    wait_for_line(&replay_log, "services created");
+    let mut recorder = spawn(
+        "recorder",
+        &["--prefix", &prefix, "--out", killed.to_str().unwrap()],
+        &dir.path().join("recorder.log"),
+    );
+    std::thread::sleep(Duration::from_secs(5));
+    recorder.0.kill().unwrap(); // SIGKILL
+    recorder.0.wait().unwrap();
+    interrupt(&mut replay.0);
+    wait_exit(&mut replay.0, Duration::from_secs(20), "replay");
+
+    let recording = Recording::open(&killed).unwrap();
+    let contents = recording.contents();
+    assert!(
+        contents.damage.is_some(),
+        "a killed recorder writes no footer"
+    );
+    let (first, last) = contents.time_range.unwrap();
+    let covered = (last - first) as f64 / 1e9;
+    // About 5 s were published; chunks are finished every second, and the
+    // replay needs a moment to start: at least 2.5 s must be there.
+    assert!(covered > 2.5, "only {covered:.2} s readable after the kill");
+    let b = lossless(&killed);
+    for topic in Topic::ALL {
+        let got = b.get(&topic).map_or(&[][..], |v| &v[..]);
+        let all = &a[&topic];
+        // Nothing lost before the last flush: each topic is a prefix of what was published.
+        assert!(got.len() <= all.len());
+        assert!(
+            got == &all[..got.len()],
+            "{}: not a prefix of the published messages",
+            topic.name()
+        );
+    }
+    eprintln!(
+        "killed after 5 s: {covered:.2} s of messages readable, {} frames, {} joint states",
+        b.get(&Topic::Frames).map_or(0, Vec::len),
+        b.get(&Topic::JointState).map_or(0, Vec::len)
+    );
+}
+
+#[test]
+fn replay_reads_a_truncated_file_partially_and_refuses_a_foreign_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = std::fs::read(recording_a()).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &whole[..whole.len() * 3 / 5]).unwrap();
+    let run = |file: &Path| {
+        Command::new(stage_binaries().join("replay"))
+            .args([
+                file.to_str().unwrap(),
+                "--prefix",
+                &unique_prefix("cut"),
+                "--kind",
+                "all",
+            ])
+            .args(["--wait-subscribers", "0", "--json"])
+            .output()
+            .unwrap()
+    };
+    let output = run(&cut);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert!(stderr.contains("damaged"), "no warning: {stderr}");
+    let stats: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let published = stats["published"].as_u64().unwrap();
+    let total: usize = lossless(&recording_a()).values().map(Vec::len).sum();
+    assert!(
+        published > 0 && (published as usize) < total,
+        "{published} of {total}"
+    );
+
+    let foreign = dir.path().join("rig.toml");
+    std::fs::copy(live_run().out.join("mirror0/rig.toml"), &foreign).unwrap();
+    let output = run(&foreign);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    let last = stderr.lines().last().unwrap();
+    assert!(
+        last.starts_with("replay: error: ")
+            && last.contains("rig.toml")
+            && last.contains("not an MCAP file"),
+        "{stderr}"
+    );
+}
