@@ -2,8 +2,9 @@
 //! mirror placement after another, and prints the paper's table for the run.
 //!
 //! Per placement it writes `rig.toml` and `plan.csv` into `OUT/mirror<i>/`,
-//! starts `mirror_proc`, `tracker_proc` and `camera_proc`, waits until they
-//! are subscribed, then starts `kinematics_proc` on the plan. A stage that
+//! starts `recorder` (unless `--no-record`), `mirror_proc`, `tracker_proc`
+//! and `camera_proc`, waits until they are subscribed, then starts
+//! `kinematics_proc` on the plan. A stage that
 //! crashes is restarted (it reattaches to the same services). When the
 //! plan is done `mirror_proc` writes `report.json`; the launcher stops the
 //! rest, evaluates the calibration against the simulator's truth and writes
