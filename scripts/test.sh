@@ -9,7 +9,7 @@ if [ ! -x target/pyenv/bin/python ]; then
     python3 -m venv target/pyenv
 fi
 target/pyenv/bin/pip install --quiet --disable-pip-version-check \
-    "mcap==1.6.*" "foxglove-schemas-protobuf==0.4.*"
+    "mcap==1.6.*" "foxglove-schemas-protobuf==0.4.*" "websockets==15.*"
 
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets -- -D warnings

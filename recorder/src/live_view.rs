@@ -14,6 +14,8 @@ pub struct LiveView {
     channels: HashMap<ViewTopic, Arc<RawChannel>>,
     server: Option<foxglove::WebSocketServerHandle>,
     port: u16,
+    // The server holds the context weakly: it must live as long as the view.
+    _context: Arc<Context>,
 }
 
 impl LiveView {
@@ -40,6 +42,7 @@ impl LiveView {
             channels,
             port: server.port(),
             server: Some(server),
+            _context: context,
         })
     }
 

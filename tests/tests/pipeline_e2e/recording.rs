@@ -393,3 +393,60 @@ fn replay_reads_a_truncated_file_partially_and_refuses_a_foreign_one() {
         "{stderr}"
     );
 }
+
+#[test]
+fn the_live_view_serves_foxglove_clients_while_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let prefix = unique_prefix("live_view");
+    let replay_log = dir.path().join("replay.log");
+    let mut replay = spawn(
+        "replay",
+        &[
+            recording_a().to_str().unwrap(),
+            "--prefix",
+            &prefix,
+            "--kind",
+            "all",
+            "--pace",
+            "original",
+            "--wait-subscribers",
+            "1",
+        ],
+        &replay_log,
+    );
+    wait_for_line(&replay_log, "services created");
+    let recorder_log = dir.path().join("recorder.log");
+    let rig = live_run().out.join("mirror0/rig.toml");
+    let mut recorder = spawn(
+        "recorder",
+        &[
+            "--prefix",
+            &prefix,
+            "--out",
+            dir.path().join("live.mcap").to_str().unwrap(),
+            "--rig",
+            rig.to_str().unwrap(),
+            "--live-view",
+            "0",
+        ],
+        &recorder_log,
+    );
+    wait_for_line(&recorder_log, "ws://127.0.0.1:");
+    let log = std::fs::read_to_string(&recorder_log).unwrap();
+    let at = log.find("ws://127.0.0.1:").unwrap() + "ws://127.0.0.1:".len();
+    let port: String = log[at..].chars().take_while(char::is_ascii_digit).collect();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/live_view_client.py");
+    let output = Command::new(python())
+        .arg(&script)
+        .arg(&port)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&output.stdout).to_string()
+        + &String::from_utf8_lossy(&output.stderr);
+    interrupt(&mut replay.0);
+    wait_exit(&mut replay.0, Duration::from_secs(20), "replay");
+    interrupt(&mut recorder.0);
+    assert!(wait_exit(&mut recorder.0, Duration::from_secs(30), "recorder").success());
+    assert!(output.status.success(), "{text}");
+    eprintln!("{text}");
+}
