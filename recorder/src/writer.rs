@@ -212,7 +212,7 @@ pub fn start(
 ) -> Result<RecorderHandle, String> {
     let file = File::create(path).map_err(|e| format!("{}: cannot create: {e}", path.display()))?;
     let mut mcap = Mcap::new(BufWriter::with_capacity(1 << 20, file), &options)
-        .map_err(|e| format!("{}: {e}", path.display()))?;
+        .map_err(|e| format!("{}: {}", path.display(), describe(&e)))?;
     for (name, path) in &options.attachments {
         mcap.attach(name, path)?;
     }
@@ -222,7 +222,7 @@ pub fn start(
                 name: name.clone(),
                 metadata: entries.clone(),
             })
-            .map_err(|e| format!("writing metadata {name}: {e}"))?;
+            .map_err(|e| format!("writing metadata {name}: {}", describe(&e)))?;
     }
     let (small_tx, small_rx) = bounded::<Entry>(16 * 1024);
     let (frames_tx, frames_rx) = bounded::<Entry>(options.frame_queue.max(1));
@@ -307,7 +307,7 @@ fn write_loop(
             mcap.write_entry(&entry, &mut view, live.as_ref(), counters)?;
         }
         if last_flush.elapsed() >= options.flush_every {
-            mcap.writer.flush().map_err(|e| e.to_string())?;
+            mcap.writer.flush().map_err(|e| describe(&e))?;
             counters.timed_flushes.fetch_add(1, Ordering::Relaxed);
             last_flush = Instant::now();
         }
@@ -377,7 +377,7 @@ impl Mcap {
                 .into(),
                 data: data.into(),
             })
-            .map_err(|e| format!("attaching {name}: {e}"))
+            .map_err(|e| format!("attaching {name}: {}", describe(&e)))
     }
 
     fn write_entry(
@@ -399,7 +399,7 @@ impl Mcap {
                 },
                 &entry.data,
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| describe(&e))?;
         let k = Topic::ALL
             .iter()
             .position(|t| *t == entry.topic)
@@ -445,11 +445,23 @@ impl Mcap {
                 },
                 &v.data,
             )
-            .map_err(|e| e.to_string())
+            .map_err(|e| describe(&e))
     }
 
     fn finish(&mut self) -> Result<(), String> {
-        self.writer.finish().map_err(|e| e.to_string())?;
+        self.writer.finish().map_err(|e| describe(&e))?;
         Ok(())
     }
+}
+
+/// An MCAP error with its cause (the I/O error says what is wrong: disk
+/// full, file too large).
+fn describe(e: &mcap::McapError) -> String {
+    let mut text = e.to_string();
+    let mut source = std::error::Error::source(e);
+    while let Some(cause) = source {
+        text += &format!(": {cause}");
+        source = cause.source();
+    }
+    text
 }

@@ -450,3 +450,106 @@ fn the_live_view_serves_foxglove_clients_while_recording() {
     assert!(output.status.success(), "{text}");
     eprintln!("{text}");
 }
+
+#[test]
+fn a_full_disk_stops_the_recorder_with_one_line_and_a_readable_file_while_stages_go_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let a_path = recording_a();
+    let a = lossless(&a_path);
+    let a_size = std::fs::metadata(&a_path).unwrap().len();
+    let prefix = unique_prefix("full_disk");
+    let replay_log = dir.path().join("replay.log");
+    let mut replay = spawn(
+        "replay",
+        &[
+            a_path.to_str().unwrap(),
+            "--prefix",
+            &prefix,
+            "--kind",
+            "frames",
+            "--pace",
+            "4x",
+            "--wait-subscribers",
+            "2",
+        ],
+        &replay_log,
+    );
+    wait_for_line(&replay_log, "services created");
+    // The file may grow to about a third of the live recording: the shell's
+    // file-size limit stands in for a full disk (SIGXFSZ ignored, so writes
+    // fail with EFBIG like they would with ENOSPC).
+    let out = dir.path().join("full.mcap");
+    let limit_blocks = (a_size / 3 / 1024).to_string();
+    let recorder_log = dir.path().join("recorder.log");
+    let mut recorder = KillOnDrop(
+        Command::new("sh")
+            .args([
+                "-c",
+                "ulimit -f \"$0\"; trap '' XFSZ; exec \"$@\"",
+                &limit_blocks,
+                stage_binaries().join("recorder").to_str().unwrap(),
+                "--prefix",
+                &prefix,
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .stderr(std::fs::File::create(&recorder_log).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    let rig = live_run().out.join("mirror0/rig.toml");
+    let mut tracker = spawn(
+        "tracker_proc",
+        &["run", "--prefix", &prefix],
+        &dir.path().join("tracker.log"),
+    );
+    let mut mirror = spawn(
+        "mirror_proc",
+        &[
+            "run",
+            "--prefix",
+            &prefix,
+            "--rig",
+            rig.to_str().unwrap(),
+            "--report",
+            dir.path().join("report.json").to_str().unwrap(),
+        ],
+        &dir.path().join("mirror.log"),
+    );
+    let status = wait_exit(&mut recorder.0, Duration::from_secs(120), "recorder");
+    let log = std::fs::read_to_string(&recorder_log).unwrap();
+    assert_eq!(status.code(), Some(1), "{log}");
+    let last = log.lines().last().unwrap();
+    assert!(
+        last.starts_with("recorder: error: recording stopped: ") && last.contains("full.mcap"),
+        "{log}"
+    );
+    // The rest of the pipeline goes on and finishes its calibration.
+    assert!(wait_exit(&mut replay.0, Duration::from_secs(120), "replay").success());
+    assert!(
+        wait_exit(&mut mirror.0, Duration::from_secs(60), "mirror_proc").success(),
+        "{}",
+        std::fs::read_to_string(dir.path().join("mirror.log")).unwrap()
+    );
+    interrupt(&mut tracker.0);
+    wait_exit(&mut tracker.0, Duration::from_secs(20), "tracker_proc");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
+            .unwrap();
+    assert!(report["calibration"].is_object(), "{report}");
+    // What was written before the disk filled is there, intact, in order.
+    let b = lossless(&out);
+    let frames = b.get(&Topic::Frames).map_or(0, Vec::len);
+    assert!(frames > 0, "nothing readable: {log}");
+    for (topic, got) in &b {
+        assert!(
+            got == &a[topic][..got.len()],
+            "{}: not a prefix",
+            topic.name()
+        );
+    }
+    eprintln!(
+        "disk full after {frames} of {} frames: {last}",
+        a[&Topic::Frames].len()
+    );
+}
