@@ -124,6 +124,7 @@ impl Recording {
                     contents.undecodable = undecodable;
                 },
                 |damage| contents.damage = Some(damage),
+                None,
             )
             .map_err(fail)?;
         recording.contents = contents;
@@ -146,7 +147,23 @@ impl Recording {
         &self,
         f: impl FnMut(u64, Message<'_>) -> Result<bool, E>,
     ) -> Result<(), E> {
-        self.visit(f, |_, _| {}, |_| {})
+        self.visit(f, |_, _| {}, |_| {}, None)
+    }
+
+    /// Calls `f` with the topic, log time and bytes of every message of
+    /// every channel (viewing channels too), in file order, up to the end of
+    /// the readable part.
+    pub fn for_each_raw(&self, mut f: impl FnMut(&str, u64, &[u8])) -> Result<(), ReadError> {
+        self.visit(
+            |_, _| Ok::<_, String>(true),
+            |_, _| {},
+            |_| {},
+            Some(&mut f),
+        )
+        .map_err(|message| ReadError {
+            path: self.path.display().to_string(),
+            message,
+        })
     }
 
     fn visit<E: From<String>>(
@@ -154,6 +171,7 @@ impl Recording {
         mut f: impl FnMut(u64, Message<'_>) -> Result<bool, E>,
         others: impl FnOnce(u64, u64),
         on_damage: impl FnOnce(Damage),
+        mut raw: Option<&mut dyn FnMut(&str, u64, &[u8])>,
     ) -> Result<(), E> {
         let mut file = std::fs::File::open(&self.path).map_err(|e| format!("cannot read: {e}"))?;
         let mut magic = [0u8; 8];
@@ -172,7 +190,7 @@ impl Recording {
         );
         let (mut read, mut other, mut undecodable) = (0u64, 0u64, 0u64);
         let mut schemas: BTreeMap<u16, (String, Vec<u8>)> = BTreeMap::new();
-        let mut channels: BTreeMap<u16, Option<Topic>> = BTreeMap::new();
+        let mut channels: BTreeMap<u16, (Option<Topic>, String)> = BTreeMap::new();
         let mut damage = None;
         while let Some(event) = reader.next_event() {
             let event = match event {
@@ -209,16 +227,19 @@ impl Recording {
                 }
                 Record::Channel(channel) => {
                     let topic = lossless_topic(&channel, schemas.get(&channel.schema_id))?;
-                    channels.insert(channel.id, topic);
+                    channels.insert(channel.id, (topic, channel.topic));
                 }
                 Record::Message { header, data } => {
-                    let Some(topic) = channels.get(&header.channel_id) else {
+                    let Some((topic, name)) = channels.get(&header.channel_id) else {
                         damage = Some(format!(
                             "message {} on channel {} that was never declared",
                             header.sequence, header.channel_id
                         ));
                         break;
                     };
+                    if let Some(raw) = raw.as_mut() {
+                        raw(name, header.log_time, &data);
+                    }
                     let Some(topic) = *topic else {
                         other += 1;
                         continue;

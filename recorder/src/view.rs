@@ -34,15 +34,21 @@ pub enum ViewTopic {
     Predictions(usize),
     /// `foxglove.CameraCalibration` of camera 0 or 1.
     CameraInfo(usize),
-    /// `foxglove.FrameTransforms`: cameras, mirror cameras, mirror, end effector.
+    /// `foxglove.FrameTransforms`: the head's cameras and the end effector
+    /// (from joint states).
     Transforms,
-    /// `foxglove.SceneUpdate`: the mirror plane, the end effector, located objects.
+    /// `foxglove.FrameTransforms`: the mirror and the mirror-perspective
+    /// cameras (from calibrations).
+    MirrorTransforms,
+    /// `foxglove.SceneUpdate`: located objects.
     Scene,
+    /// `foxglove.SceneUpdate`: the calibrated mirror.
+    MirrorScene,
 }
 
 impl ViewTopic {
     /// Every viewing channel.
-    pub const ALL: [ViewTopic; 10] = [
+    pub const ALL: [ViewTopic; 12] = [
         ViewTopic::Image(0),
         ViewTopic::Image(1),
         ViewTopic::Detections(0),
@@ -52,7 +58,9 @@ impl ViewTopic {
         ViewTopic::CameraInfo(0),
         ViewTopic::CameraInfo(1),
         ViewTopic::Transforms,
+        ViewTopic::MirrorTransforms,
         ViewTopic::Scene,
+        ViewTopic::MirrorScene,
     ];
 
     /// The MCAP / WebSocket topic.
@@ -64,7 +72,9 @@ impl ViewTopic {
             ViewTopic::Predictions(k) => format!("/camera/{}/predictions", side(k)),
             ViewTopic::CameraInfo(k) => format!("/camera/{}/calibration", side(k)),
             ViewTopic::Transforms => "/tf".into(),
+            ViewTopic::MirrorTransforms => "/mirror/tf".into(),
             ViewTopic::Scene => "/scene".into(),
+            ViewTopic::MirrorScene => "/mirror/scene".into(),
         }
     }
 
@@ -74,8 +84,8 @@ impl ViewTopic {
             ViewTopic::Image(_) => RawImage::get_schema(),
             ViewTopic::Detections(_) | ViewTopic::Predictions(_) => ImageAnnotations::get_schema(),
             ViewTopic::CameraInfo(_) => CameraCalibration::get_schema(),
-            ViewTopic::Transforms => FrameTransforms::get_schema(),
-            ViewTopic::Scene => SceneUpdate::get_schema(),
+            ViewTopic::Transforms | ViewTopic::MirrorTransforms => FrameTransforms::get_schema(),
+            ViewTopic::Scene | ViewTopic::MirrorScene => SceneUpdate::get_schema(),
         }
         .expect("Foxglove's schema types carry their schema")
     }
@@ -165,11 +175,11 @@ fn camera_transform(stamp_ns: i64, child: &str, camera: &Camera) -> Option<Frame
     })
 }
 
-/// Builds the viewing messages from the lossless ones, keeping what later
-/// messages need (the rig, the latest calibration, what was last repeated).
+/// Builds the viewing messages from the lossless ones. Each viewing channel
+/// depends on one lossless channel only (and the rig), so a replay gives the
+/// same viewing messages whatever order the topics arrive in.
 pub struct ViewBuilder {
     rig: Option<Rig>,
-    joint_offsets: Vec<f64>,
     last_repeat_ns: Option<i64>,
     /// Whether raw images are derived from frames (they double the bytes).
     pub images: bool,
@@ -181,7 +191,6 @@ impl ViewBuilder {
     pub fn new(rig: Option<Rig>) -> Self {
         Self {
             rig,
-            joint_offsets: Vec::new(),
             last_repeat_ns: None,
             images: true,
         }
@@ -189,15 +198,7 @@ impl ViewBuilder {
 
     /// The viewing messages derived from one recorded message.
     pub fn view(&mut self, message: &Message<'_>) -> Vec<ViewMessage> {
-        let stamp = message.stamp_ns();
         let mut out = Vec::new();
-        if self
-            .last_repeat_ns
-            .is_none_or(|last| stamp - last >= REPEAT_NS || stamp < last)
-        {
-            self.last_repeat_ns = Some(stamp);
-            self.repeated(stamp, &mut out);
-        }
         match message {
             Message::Frame(header, pixels) if self.images => {
                 Self::images(header, pixels, &mut out);
@@ -244,7 +245,18 @@ impl ViewBuilder {
                 }
             }
             Message::Calibration(c) => self.calibration(c, &mut out),
-            Message::JointState(js) => self.arm(js, &mut out),
+            Message::JointState(js) => {
+                // Joint states pace the repeats: they come at a steady rate in
+                // live runs and in both kinds of replay.
+                if self
+                    .last_repeat_ns
+                    .is_none_or(|last| js.stamp_ns - last >= REPEAT_NS || js.stamp_ns < last)
+                {
+                    self.last_repeat_ns = Some(js.stamp_ns);
+                    self.repeated(js.stamp_ns, &mut out);
+                }
+                self.arm(js, &mut out)
+            }
             Message::Located(l) => out.push(encode(ViewTopic::Scene, l.stamp_ns, &located(l))),
             Message::Sample(_) => {}
         }
@@ -299,9 +311,7 @@ impl ViewBuilder {
         out.push(encode(ViewTopic::Transforms, stamp, &transforms));
     }
 
-    fn calibration(&mut self, c: &CalibrationMsg, out: &mut Vec<ViewMessage>) {
-        self.joint_offsets =
-            c.joint_offsets[..(c.dof as usize).min(c.joint_offsets.len())].to_vec();
+    fn calibration(&self, c: &CalibrationMsg, out: &mut Vec<ViewMessage>) {
         let Some(rig) = &self.rig else { return };
         let mut transforms = FrameTransforms::default();
         for k in 0..2 {
@@ -347,23 +357,19 @@ impl ViewBuilder {
                 ..Default::default()
             });
         }
-        out.push(encode(ViewTopic::Transforms, c.stamp_ns, &transforms));
+        out.push(encode(ViewTopic::MirrorTransforms, c.stamp_ns, &transforms));
         if !scene.entities.is_empty() {
-            out.push(encode(ViewTopic::Scene, c.stamp_ns, &scene));
+            out.push(encode(ViewTopic::MirrorScene, c.stamp_ns, &scene));
         }
     }
 
-    /// The end effector from the joint state through the arm model (with
-    /// the calibrated joint offsets once there are any).
+    /// The end effector from the joint state through the nominal arm model
+    /// (the calibrated offsets are in `/mirror/tf`'s source, the calibration).
     fn arm(&self, js: &JointState, out: &mut Vec<ViewMessage>) {
         let Some(arm) = self.rig.as_ref().and_then(|r| r.arm.as_ref()) else {
             return;
         };
-        let mut offsets = vec![0.0; arm.dof()];
-        for (o, c) in offsets.iter_mut().zip(&self.joint_offsets) {
-            *o = *c;
-        }
-        let Ok(tip) = arm.end_effector(js.joints(), &offsets) else {
+        let Ok(tip) = arm.end_effector(js.joints(), &vec![0.0; arm.dof()]) else {
             return;
         };
         let transforms = FrameTransforms {

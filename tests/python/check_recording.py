@@ -36,7 +36,9 @@ VIEW = {
     "/camera/left/calibration": CameraCalibration,
     "/camera/right/calibration": CameraCalibration,
     "/tf": FrameTransforms,
+    "/mirror/tf": FrameTransforms,
     "/scene": SceneUpdate,
+    "/mirror/scene": SceneUpdate,
 }
 
 with open(path, "rb") as f:
