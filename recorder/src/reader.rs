@@ -59,6 +59,9 @@ pub struct Recording {
     contents: Contents,
 }
 
+/// Called with the topic, log time and bytes of each message.
+type RawVisitor<'a> = &'a mut dyn FnMut(&str, u64, &[u8]);
+
 const MAGIC: &[u8] = b"\x89MCAP0\r\n";
 /// The largest record or decompressed chunk accepted: a corrupt length
 /// field must not make the reader allocate without bound.
@@ -171,7 +174,7 @@ impl Recording {
         mut f: impl FnMut(u64, Message<'_>) -> Result<bool, E>,
         others: impl FnOnce(u64, u64),
         on_damage: impl FnOnce(Damage),
-        mut raw: Option<&mut dyn FnMut(&str, u64, &[u8])>,
+        mut raw: Option<RawVisitor<'_>>,
     ) -> Result<(), E> {
         let mut file = std::fs::File::open(&self.path).map_err(|e| format!("cannot read: {e}"))?;
         let mut magic = [0u8; 8];
