@@ -249,6 +249,7 @@ fn run_placement(
             s(prefix),
             s("--out"),
             recording_path.display().to_string(),
+            s("--overwrite"),
             s("--rig"),
             rig_path.display().to_string(),
             s("--attach"),

@@ -21,6 +21,9 @@ struct Args {
     /// Output file.
     #[arg(long, default_value = "recording.mcap")]
     out: PathBuf,
+    /// Replace the output file if it exists.
+    #[arg(long)]
+    overwrite: bool,
     /// Chunk compression.
     #[arg(long, value_enum, default_value_t = Compression::Zstd)]
     compression: Compression,
@@ -61,6 +64,12 @@ fn parse_key_value(s: &str) -> Result<(String, String), String> {
 }
 
 fn run(args: Args) -> Result<()> {
+    if args.out.exists() && !args.overwrite {
+        anyhow::bail!(
+            "{}: exists; pass --overwrite to replace it",
+            args.out.display()
+        );
+    }
     let mut metadata = Vec::new();
     let mut run_meta: BTreeMap<String, String> = args.meta.iter().cloned().collect();
     run_meta.insert("prefix".into(), args.prefix.clone());

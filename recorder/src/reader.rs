@@ -62,6 +62,7 @@ pub struct Recording {
 /// Called with the topic, log time and bytes of each message.
 type RawVisitor<'a> = &'a mut dyn FnMut(&str, u64, &[u8]);
 
+const NOT_MCAP: &str = "not an MCAP file (it does not start with the MCAP magic)";
 const MAGIC: &[u8] = b"\x89MCAP0\r\n";
 /// The largest record or decompressed chunk accepted: a corrupt length
 /// field must not make the reader allocate without bound.
@@ -100,6 +101,22 @@ fn lossless_topic(
 }
 
 impl Recording {
+    /// Checks that `path` can be read and starts like an MCAP file, without
+    /// scanning it.
+    pub fn probe(path: impl AsRef<Path>) -> Result<(), ReadError> {
+        let path = path.as_ref();
+        let fail = |message: String| ReadError {
+            path: path.display().to_string(),
+            message,
+        };
+        let mut file = std::fs::File::open(path).map_err(|e| fail(format!("cannot read: {e}")))?;
+        let mut magic = [0u8; 8];
+        if file.read_exact(&mut magic).is_err() || magic != MAGIC {
+            return Err(fail(NOT_MCAP.into()));
+        }
+        Ok(())
+    }
+
     /// Opens and scans `path`.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, ReadError> {
         let path = path.as_ref().to_path_buf();
@@ -180,9 +197,7 @@ impl Recording {
         let mut magic = [0u8; 8];
         let starts_right = file.read_exact(&mut magic).is_ok() && magic == MAGIC;
         if !starts_right {
-            return Err(
-                String::from("not an MCAP file (it does not start with the MCAP magic)").into(),
-            );
+            return Err(String::from(NOT_MCAP).into());
         }
         file.seek(SeekFrom::Start(0))
             .map_err(|e| format!("cannot read: {e}"))?;

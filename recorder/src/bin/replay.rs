@@ -74,6 +74,7 @@ fn topics_of(args: &Args) -> Result<Vec<Topic>> {
 
 fn run(args: Args) -> Result<()> {
     let topics = topics_of(&args)?;
+    Recording::probe(&args.file)?;
     let bus = ReplayBus::create(&args.prefix)?;
     tracing::info!(
         prefix = args.prefix,

@@ -360,7 +360,17 @@ fn a_recorder_killed_mid_run_leaves_every_message_up_to_its_last_flush() {
         &["--prefix", &prefix, "--out", killed.to_str().unwrap()],
         &dir.path().join("recorder.log"),
     );
-    std::thread::sleep(Duration::from_secs(5));
+    // Kill it once a good part of the run is on disk (by size, not by the
+    // clock, so a loaded machine does not change what is tested).
+    let a_size = std::fs::metadata(&a_path).unwrap().len();
+    let started = Instant::now();
+    while std::fs::metadata(&killed).map_or(0, |m| m.len()) < a_size / 3 {
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "the recording does not grow"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
     recorder.0.kill().unwrap(); // SIGKILL
     recorder.0.wait().unwrap();
     interrupt(&mut replay.0);
@@ -374,9 +384,8 @@ fn a_recorder_killed_mid_run_leaves_every_message_up_to_its_last_flush() {
     );
     let (first, last) = contents.time_range.unwrap();
     let covered = (last - first) as f64 / 1e9;
-    // About 5 s were published; chunks are finished every second, and the
-    // replay needs a moment to start: at least 2.5 s must be there.
-    assert!(covered > 2.5, "only {covered:.2} s readable after the kill");
+    // A third of the file was on disk, flushed chunk by chunk.
+    assert!(covered > 1.0, "only {covered:.2} s readable after the kill");
     let b = lossless(&killed);
     for topic in Topic::ALL {
         let got = b.get(&topic).map_or(&[][..], |v| &v[..]);
@@ -390,7 +399,7 @@ fn a_recorder_killed_mid_run_leaves_every_message_up_to_its_last_flush() {
         );
     }
     eprintln!(
-        "killed after 5 s: {covered:.2} s of messages readable, {} frames, {} joint states",
+        "killed mid-run: {covered:.2} s of messages readable, {} frames, {} joint states",
         b.get(&Topic::Frames).map_or(0, Vec::len),
         b.get(&Topic::JointState).map_or(0, Vec::len)
     );
