@@ -92,31 +92,37 @@ fn wait_for_line(log: &Path, text: &str) {
     }
 }
 
-/// Replays the live recording (`kind` frames or detections) in lockstep
-/// into fresh stages and a recorder; returns the new recording.
-fn replay_into(kind: &str, dir: &Path) -> PathBuf {
-    let a = recording_a();
-    let rig = live_run().out.join("mirror0/rig.toml");
-    let prefix = unique_prefix(&format!("replay_{kind}"));
-    let b = dir.join(format!("replay_{kind}.mcap"));
-    let replay_log = dir.join("replay.log");
-    let mut replay = spawn(
+/// Starts `replay` of the live recording on `prefix` and waits until its
+/// services exist (the stages must come after).
+fn start_replay(dir: &Path, prefix: &str, kind: &str, pace: &str, subscribers: &str) -> KillOnDrop {
+    let log = dir.join("replay.log");
+    let replay = spawn(
         "replay",
         &[
-            a.to_str().unwrap(),
+            recording_a().to_str().unwrap(),
             "--prefix",
-            &prefix,
+            prefix,
             "--kind",
             kind,
             "--pace",
-            "lockstep",
+            pace,
             "--wait-subscribers",
-            "2",
+            subscribers,
             "--json",
         ],
-        &replay_log,
+        &log,
     );
-    wait_for_line(&replay_log, "services created");
+    wait_for_line(&log, "services created");
+    replay
+}
+
+/// Replays the live recording (`kind` frames or detections) in lockstep
+/// into fresh stages and a recorder; returns the new recording.
+fn replay_into(kind: &str, dir: &Path) -> PathBuf {
+    let rig = live_run().out.join("mirror0/rig.toml");
+    let prefix = unique_prefix(&format!("replay_{kind}"));
+    let b = dir.join(format!("replay_{kind}.mcap"));
+    let mut replay = start_replay(dir, &prefix, kind, "lockstep", "2");
     let mut recorder = spawn(
         "recorder",
         &[
@@ -156,7 +162,7 @@ fn replay_into(kind: &str, dir: &Path) -> PathBuf {
     );
     let started = Instant::now();
     let status = wait_exit(&mut replay.0, Duration::from_secs(120), "replay");
-    let log = std::fs::read_to_string(&replay_log).unwrap();
+    let log = std::fs::read_to_string(dir.join("replay.log")).unwrap();
     assert!(status.success(), "replay failed: {log}");
     let mut stats = String::new();
     std::io::Read::read_to_string(replay.0.stdout.as_mut().unwrap(), &mut stats).unwrap();
@@ -337,24 +343,7 @@ fn a_recorder_killed_mid_run_leaves_every_message_up_to_its_last_flush() {
     let a = lossless(&a_path);
     let prefix = unique_prefix("killed");
     let killed = dir.path().join("killed.mcap");
-    let replay_log = dir.path().join("replay.log");
-    // Replay the live recording at its original pace into a recorder alone.
-    let mut replay = spawn(
-        "replay",
-        &[
-            a_path.to_str().unwrap(),
-            "--prefix",
-            &prefix,
-            "--kind",
-            "all",
-            "--pace",
-            "original",
-            "--wait-subscribers",
-            "1",
-        ],
-        &replay_log,
-    );
-    wait_for_line(&replay_log, "services created");
+    let mut replay = start_replay(dir.path(), &prefix, "all", "original", "1");
     let mut recorder = spawn(
         "recorder",
         &["--prefix", &prefix, "--out", killed.to_str().unwrap()],
@@ -454,23 +443,7 @@ fn replay_reads_a_truncated_file_partially_and_refuses_a_foreign_one() {
 fn the_live_view_serves_foxglove_clients_while_recording() {
     let dir = tempfile::tempdir().unwrap();
     let prefix = unique_prefix("live_view");
-    let replay_log = dir.path().join("replay.log");
-    let mut replay = spawn(
-        "replay",
-        &[
-            recording_a().to_str().unwrap(),
-            "--prefix",
-            &prefix,
-            "--kind",
-            "all",
-            "--pace",
-            "original",
-            "--wait-subscribers",
-            "1",
-        ],
-        &replay_log,
-    );
-    wait_for_line(&replay_log, "services created");
+    let mut replay = start_replay(dir.path(), &prefix, "all", "original", "1");
     let recorder_log = dir.path().join("recorder.log");
     let rig = live_run().out.join("mirror0/rig.toml");
     let mut recorder = spawn(
@@ -514,23 +487,7 @@ fn a_full_disk_stops_the_recorder_with_one_line_and_a_readable_file_while_stages
     let a = lossless(&a_path);
     let a_size = std::fs::metadata(&a_path).unwrap().len();
     let prefix = unique_prefix("full_disk");
-    let replay_log = dir.path().join("replay.log");
-    let mut replay = spawn(
-        "replay",
-        &[
-            a_path.to_str().unwrap(),
-            "--prefix",
-            &prefix,
-            "--kind",
-            "frames",
-            "--pace",
-            "4x",
-            "--wait-subscribers",
-            "2",
-        ],
-        &replay_log,
-    );
-    wait_for_line(&replay_log, "services created");
+    let mut replay = start_replay(dir.path(), &prefix, "frames", "4x", "2");
     // The file may grow to about a third of the live recording: the shell's
     // file-size limit stands in for a full disk (SIGXFSZ ignored, so writes
     // fail with EFBIG like they would with ENOSPC).
