@@ -20,6 +20,7 @@
 #![warn(missing_docs)]
 
 mod bus;
+pub mod trace;
 mod types;
 
 pub use bus::{
@@ -67,22 +68,40 @@ pub fn now_ns() -> i64 {
 }
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`), in colour only
-/// on a terminal (stage logs usually go to a file, `stages.log`).
-pub fn init_logging() {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
+/// on a terminal (stage logs usually go to a file, `stages.log`); with
+/// `MIRROR_TRACE_DIR` set, also writes every span as a trace event (see
+/// [`trace`]). `name` names the process in the trace.
+pub fn init_logging(name: &str) {
+    use tracing_subscriber::prelude::*;
+    let fmt = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
+        .with_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        );
+    let mut trace_error = None;
+    let chrome = std::env::var_os(trace::TRACE_DIR_ENV).and_then(|dir| {
+        trace::ChromeLayer::create(std::path::Path::new(&dir), name)
+            .map_err(|e| {
+                trace_error = Some(format!("{}: {e}", std::path::Path::new(&dir).display()))
+            })
+            .ok()
+    });
+    let chrome =
+        chrome.map(|l| l.with_filter(tracing_subscriber::filter::filter_fn(|meta| meta.is_span())));
+    tracing_subscriber::registry().with(fmt).with(chrome).init();
+    if let Some(e) = trace_error {
+        tracing::warn!("no trace: {e}");
+    }
 }
 
 /// Runs a stage's `main`: logs to stderr (`RUST_LOG`, default `info`), then
 /// maps an error to one line `<name>: error: ...` and exit code 1.
 pub fn stage_main(name: &str, run: impl FnOnce() -> anyhow::Result<()>) -> std::process::ExitCode {
-    init_logging();
-    match run() {
+    init_logging(name);
+    let result = run();
+    trace::flush();
+    match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("{name}: error: {e:#}");

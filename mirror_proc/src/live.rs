@@ -352,6 +352,7 @@ impl Live {
     }
 
     fn recalibrate(&mut self, stamp_ns: i64, out: &mut Vec<Output>) {
+        let _span = tracing::trace_span!("calibrate", samples = self.train.len()).entered();
         let samples: Vec<Sample> = self.train.iter().map(MirrorSample::to_sample).collect();
         match calibrate(&self.rig, &samples, self.config.method) {
             Ok(cal) => {

@@ -60,14 +60,19 @@ struct Args {
     /// (ws://127.0.0.1:PORT) while the pipeline runs.
     #[arg(long)]
     live_view: Option<u16>,
+    /// Trace every stage step of every process into
+    /// OUT/mirror<i>/trace.json (Chrome trace format; open it in Perfetto).
+    #[arg(long)]
+    trace: bool,
 }
 
-/// Recording settings of a run.
+/// Recording and tracing settings of a run.
 #[derive(Debug, Clone)]
 struct Recording {
     enabled: bool,
     live_view: Option<u16>,
     config_path: PathBuf,
+    trace: bool,
 }
 
 /// The run's settings.
@@ -113,8 +118,8 @@ struct Stage {
 const MAX_RESTARTS: u32 = 3;
 
 impl Stage {
-    fn spawn(bin_dir: &Path, name: &'static str, args: Vec<String>, log: &Path) -> Result<Self> {
-        let child = spawn(bin_dir, name, &args, log)?;
+    fn spawn(launch: &Launch<'_>, name: &'static str, args: Vec<String>) -> Result<Self> {
+        let child = spawn(launch, name, &args)?;
         Ok(Self {
             name,
             args,
@@ -124,12 +129,26 @@ impl Stage {
     }
 }
 
-fn spawn(bin_dir: &Path, name: &str, args: &[String], log: &Path) -> Result<Child> {
+/// Where and how a placement's stages are started.
+struct Launch<'a> {
+    bin_dir: &'a Path,
+    /// Every stage's stderr, appended.
+    log: PathBuf,
+    /// Trace directory (`MIRROR_TRACE_DIR`), when tracing.
+    trace_dir: Option<PathBuf>,
+}
+
+fn spawn(launch: &Launch<'_>, name: &str, args: &[String]) -> Result<Child> {
+    let bin_dir = launch.bin_dir;
     let log_file = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
-        .open(log)?;
-    Command::new(bin_dir.join(name))
+        .open(&launch.log)?;
+    let mut command = Command::new(bin_dir.join(name));
+    if let Some(dir) = &launch.trace_dir {
+        command.env(messages::trace::TRACE_DIR_ENV, dir);
+    }
+    command
         .args(args)
         .stdout(Stdio::null())
         .stderr(log_file)
@@ -238,6 +257,15 @@ fn run_placement(
     let _ = std::fs::remove_file(&report_path);
     let log = dir.join("stages.log");
     let _ = std::fs::remove_file(&log);
+    let trace_dir = recording.trace.then(|| dir.join("trace"));
+    if let Some(t) = &trace_dir {
+        let _ = std::fs::remove_dir_all(t);
+    }
+    let launch = Launch {
+        bin_dir,
+        log: log.clone(),
+        trace_dir: trace_dir.clone(),
+    };
     let s = |v: &str| v.to_string();
     let started = Instant::now();
     // The recorder first, so it sees every message; it is not restarted
@@ -266,13 +294,13 @@ fn run_placement(
         if let Some(port) = recording.live_view {
             args.extend([s("--live-view"), port.to_string()]);
         }
-        Some(spawn(bin_dir, "recorder", &args, &log)?)
+        Some(spawn(&launch, "recorder", &args)?)
     } else {
         None
     };
     let mut stages = vec![
         Stage::spawn(
-            bin_dir,
+            &launch,
             "mirror_proc",
             vec![
                 s("run"),
@@ -287,16 +315,14 @@ fn run_placement(
                 s("--report"),
                 report_path.display().to_string(),
             ],
-            &log,
         )?,
         Stage::spawn(
-            bin_dir,
+            &launch,
             "tracker_proc",
             vec![s("run"), s("--prefix"), s(prefix)],
-            &log,
         )?,
         Stage::spawn(
-            bin_dir,
+            &launch,
             "camera_proc",
             vec![
                 s("sim"),
@@ -307,7 +333,6 @@ fn run_placement(
                 s("--fps"),
                 config.fps.to_string(),
             ],
-            &log,
         )?,
     ];
     // Start the arm only once every consumer listens.
@@ -345,7 +370,7 @@ fn run_placement(
         s("--wait-subscribers"),
         (2 + usize::from(recorder.is_some())).to_string(),
     ];
-    stages.push(Stage::spawn(bin_dir, "kinematics_proc", kin_args, &log)?);
+    stages.push(Stage::spawn(&launch, "kinematics_proc", kin_args)?);
     // Progress from the stage outputs.
     let samples = bus.subscriber::<MirrorSample>(topics::SAMPLES)?;
     let calibrations = bus.subscriber::<CalibrationMsg>(topics::CALIBRATION)?;
@@ -400,7 +425,7 @@ fn run_placement(
                 } else if !finished_normally && stage.restarts < MAX_RESTARTS {
                     eprintln!("\n{} exited ({status}); restarting it", stage.name);
                     stage.restarts += 1;
-                    stage.child = spawn(bin_dir, stage.name, &stage.args, &log)?;
+                    stage.child = spawn(&launch, stage.name, &stage.args)?;
                 } else if !finished_normally {
                     failed = Some(stage.name);
                 }
@@ -431,6 +456,15 @@ fn run_placement(
     let restarts = stages.iter().map(|s| s.restarts).sum();
     stop(&mut stages);
     let recording_file = stop_recorder(recorder.take(), &recording_path);
+    if let Some(t) = &trace_dir {
+        let merged = dir.join("trace.json");
+        let events = messages::trace::merge(t, &merged)
+            .with_context(|| format!("{}: cannot merge the traces", t.display()))?;
+        eprintln!(
+            "trace: {} ({events} events; open in https://ui.perfetto.dev)",
+            merged.display()
+        );
+    }
     let report: LiveReport = serde_json::from_str(
         &std::fs::read_to_string(&report_path)
             .with_context(|| format!("{}: missing", report_path.display()))?,
@@ -598,6 +632,7 @@ fn run(args: Args) -> Result<()> {
         enabled: !args.no_record,
         live_view: args.live_view,
         config_path: args.config.clone(),
+        trace: args.trace,
     };
     let mut results = Vec::new();
     for &m in &config.mirrors {

@@ -76,6 +76,7 @@ impl Capture {
             let Some((seq, stamp, data)) = taken else {
                 break;
             };
+            let _span = tracing::trace_span!("record_frame", seq).entered();
             if let Some(last) = self.last_frame_seq.get()
                 && seq > last + 1
             {

@@ -41,6 +41,7 @@ pub fn live_run() -> &'static LiveRun {
                 out.to_str().unwrap(),
                 "--prefix",
                 &unique_prefix("e2e"),
+                "--trace",
             ])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -118,5 +119,70 @@ fn live_pipeline_calibrates_against_the_simulators_truth() {
     );
     eprintln!(
         "plane {angle:.4} deg / {distance:.3} mm; object {error:.2} mm (bound {bound:.2}); mirror 2D {m2d:.3} px"
+    );
+}
+
+/// The trace of the live run: one timeline with every stage's spans, and a
+/// frame followed from the camera through the tracker to the mirror stage.
+#[test]
+fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
+    let path = live_run().out.join("mirror0/trace.json");
+    let trace: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let events = trace["traceEvents"].as_array().unwrap();
+    let processes: std::collections::BTreeMap<u64, String> = events
+        .iter()
+        .filter(|e| e["ph"] == "M" && e["name"] == "process_name")
+        .map(|e| {
+            (
+                e["pid"].as_u64().unwrap(),
+                e["args"]["name"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    let names: std::collections::BTreeSet<&str> = processes.values().map(String::as_str).collect();
+    for stage in [
+        "camera_proc",
+        "tracker_proc",
+        "kinematics_proc",
+        "mirror_proc",
+        "recorder",
+    ] {
+        assert!(names.contains(stage), "no {stage} in the trace: {names:?}");
+    }
+    let spans = |name: &str| -> Vec<&serde_json::Value> {
+        events
+            .iter()
+            .filter(|e| e["ph"] == "X" && e["name"] == name)
+            .collect()
+    };
+    assert!(!spans("kinematics_step").is_empty());
+    assert!(!spans("calibrate").is_empty());
+    // Every frame the mirror stage handled: camera, then tracker, then mirror
+    // stage, each in its own process, in that order on the shared clock.
+    let mirror_steps = spans("mirror_step");
+    assert!(
+        mirror_steps.len() > 100,
+        "{} mirror steps",
+        mirror_steps.len()
+    );
+    let find = |name: &str, seq: &serde_json::Value| {
+        spans(name).into_iter().find(|e| &e["args"]["seq"] == seq)
+    };
+    let mut followed = 0;
+    for m in &mirror_steps {
+        let seq = &m["args"]["seq"];
+        let (Some(c), Some(t)) = (find("camera_step", seq), find("tracker_step", seq)) else {
+            panic!("frame {seq}: no camera or tracker span");
+        };
+        let ts = |e: &serde_json::Value| e["ts"].as_f64().unwrap();
+        assert!(ts(c) < ts(t) && ts(t) < ts(m), "frame {seq} out of order");
+        assert!(c["pid"] != t["pid"] && t["pid"] != m["pid"]);
+        followed += 1;
+    }
+    eprintln!(
+        "{} events from {} processes; {followed} frames followed camera -> tracker -> mirror",
+        events.len(),
+        processes.len()
     );
 }
