@@ -102,6 +102,7 @@ fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()
     let period_ns = (1e9 / fps) as i64;
     let mut next_due = i64::MIN;
     let mut failure = None;
+    let mut stats = messages::stats::StageStats::new("camera_proc");
     tracing::info!(mirror, fps, "rendering the simulated head");
     bus.wake()?.run(
         &[joints.listener()],
@@ -131,7 +132,8 @@ fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()
                     .render(state.joints(), facing(state.role), seq, left, right)
                     .map(|_| ())
             }) {
-                Ok(Ok(())) => {}
+                // The simulated capture: the frame's stamp to its publication (rendering).
+                Ok(Ok(())) => stats.record("capture_to_publish", now_ns() - h.stamp_ns),
                 Ok(Err(e)) => {
                     failure = Some(e);
                     return false;
@@ -148,6 +150,8 @@ fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()
             after_done <= tail_frames
         },
     )?;
+    stats.count("frames", seq);
+    stats.finish();
     if let Some(e) = failure {
         return Err(e);
     }

@@ -20,6 +20,7 @@
 #![warn(missing_docs)]
 
 mod bus;
+pub mod stats;
 pub mod trace;
 mod types;
 

@@ -24,15 +24,18 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
     let mut failure: Option<anyhow::Error> = None;
     // Frame capture (detection stamp) to the moment its sample is published.
     let mut sample_latency_ns = Vec::new();
+    let mut stats = messages::stats::StageStats::new("mirror_proc");
     tracing::info!(prefix, "mirror stage running");
     bus.wake()?
         .run(&[joints.listener(), detections.listener()], None, || {
             let mut step = || -> Result<bool> {
                 let mut outputs = Vec::new();
+                let mut received_ns = Vec::new();
                 while let Some(js) = joints.receive()? {
                     outputs.extend(live.push_joint_state(js));
                 }
                 while let Some(d) = detections.receive()? {
+                    received_ns.push(now_ns());
                     let _span = tracing::trace_span!("mirror_step", seq = d.seq).entered();
                     outputs.extend(live.push_detections(d));
                 }
@@ -40,7 +43,9 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
                     match o {
                         Output::Sample(s) => {
                             samples.send(s)?;
-                            sample_latency_ns.push(now_ns() - s.stamp_ns);
+                            let latency = now_ns() - s.stamp_ns;
+                            sample_latency_ns.push(latency);
+                            stats.record("capture_to_sample", latency);
                         }
                         Output::Calibration(c) => {
                             tracing::info!(
@@ -54,6 +59,13 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
                         Output::Prediction(p) => predictions.send(p)?,
                         Output::Located(l) => located.send(l)?,
                     }
+                }
+                // Each detection from its arrival to the end of this wake's
+                // publishing (the wait in the merge for the joint states to
+                // pass it shows in capture_to_sample).
+                let now = now_ns();
+                for r in received_ns {
+                    stats.record("receive_to_publish", now - r);
                 }
                 Ok(!live.finished())
             };
@@ -69,6 +81,9 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
         return Err(e);
     }
     let mut report = live.report();
+    stats.count("detections_rejected", report.counters.rejected);
+    stats.count("poses_missed", report.counters.missed);
+    stats.finish();
     report.latency_ms = Latency::of(&sample_latency_ns);
     tracing::info!(
         train = report.train_samples,

@@ -53,17 +53,29 @@ struct Args {
     #[arg(long)]
     prefix: Option<String>,
     /// Do not record (by default each placement is recorded into
-    /// OUT/mirror<i>/recording.mcap).
+    /// `OUT/mirror<i>/recording.mcap`).
     #[arg(long)]
     no_record: bool,
     /// Serve the viewing channels live to Foxglove on this localhost port
     /// (ws://127.0.0.1:PORT) while the pipeline runs.
     #[arg(long)]
     live_view: Option<u16>,
+    /// What to print at the end: the tables, or the whole report as JSON.
+    #[arg(long, value_enum, default_value_t = ReportFormat::Table)]
+    report: ReportFormat,
     /// Trace every stage step of every process into
-    /// OUT/mirror<i>/trace.json (Chrome trace format; open it in Perfetto).
+    /// `OUT/mirror<i>/trace.json` (Chrome trace format; open it in Perfetto).
     #[arg(long)]
     trace: bool,
+}
+
+/// The form of the final report on stdout.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ReportFormat {
+    /// The paper's table and the latency table.
+    Table,
+    /// The full report (the same as OUT/report.json).
+    Json,
 }
 
 /// Recording and tracing settings of a run.
@@ -106,6 +118,8 @@ struct PlacementResult {
     restarts: u32,
     seconds: f64,
     recording: Option<PathBuf>,
+    /// Each stage process's latencies (HDR histograms) and counters.
+    stages: Vec<messages::stats::StageSummary>,
 }
 
 struct Stage {
@@ -136,6 +150,8 @@ struct Launch<'a> {
     log: PathBuf,
     /// Trace directory (`MIRROR_TRACE_DIR`), when tracing.
     trace_dir: Option<PathBuf>,
+    /// Where the stages write their timing (`MIRROR_STATS_DIR`).
+    stats_dir: PathBuf,
 }
 
 fn spawn(launch: &Launch<'_>, name: &str, args: &[String]) -> Result<Child> {
@@ -148,6 +164,7 @@ fn spawn(launch: &Launch<'_>, name: &str, args: &[String]) -> Result<Child> {
     if let Some(dir) = &launch.trace_dir {
         command.env(messages::trace::TRACE_DIR_ENV, dir);
     }
+    command.env(messages::stats::STATS_DIR_ENV, &launch.stats_dir);
     command
         .args(args)
         .stdout(Stdio::null())
@@ -261,10 +278,13 @@ fn run_placement(
     if let Some(t) = &trace_dir {
         let _ = std::fs::remove_dir_all(t);
     }
+    let stats_dir = dir.join("stats");
+    let _ = std::fs::remove_dir_all(&stats_dir);
     let launch = Launch {
         bin_dir,
         log: log.clone(),
         trace_dir: trace_dir.clone(),
+        stats_dir: stats_dir.clone(),
     };
     let s = |v: &str| v.to_string();
     let started = Instant::now();
@@ -505,11 +525,53 @@ fn run_placement(
         restarts,
         seconds: started.elapsed().as_secs_f64(),
         recording: recording_file,
+        stages: messages::stats::read_all(&stats_dir),
     })
 }
 
 fn cell(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.2}"))
+}
+
+/// Per stage and placement: latency percentiles (from each stage's HDR
+/// histograms) and the drop counters.
+fn latency_table(results: &[PlacementResult]) -> String {
+    let mut s = String::from("\nLatency per stage, ms (HDR histograms)\n");
+    s += &format!(
+        "  {:<10} {:<14} {:<20} {:>7} {:>8} {:>8} {:>8} {:>8}\n",
+        "placement", "stage", "", "count", "median", "p90", "p99", "max"
+    );
+    for r in results {
+        for stage in &r.stages {
+            for (name, l) in &stage.latencies {
+                s += &format!(
+                    "  {:<10} {:<14} {:<20} {:>7} {:>8.2} {:>8.2} {:>8.2} {:>8.2}\n",
+                    format!("mirror {}", r.mirror),
+                    stage.stage,
+                    name,
+                    l.count,
+                    l.p50_ms,
+                    l.p90_ms,
+                    l.p99_ms,
+                    l.max_ms
+                );
+            }
+        }
+        let counters: Vec<String> = r
+            .stages
+            .iter()
+            .flat_map(|st| {
+                st.counters
+                    .iter()
+                    .filter(|(k, _)| {
+                        k.contains("missed") || k.contains("dropped") || k.contains("rejected")
+                    })
+                    .map(move |(k, v)| format!("{} {k} {v}", st.stage))
+            })
+            .collect();
+        s += &format!("  mirror {} drops: {}\n", r.mirror, counters.join(", "));
+    }
+    s
 }
 
 fn table(results: &[PlacementResult], method: &str) -> String {
@@ -641,12 +703,17 @@ fn run(args: Args) -> Result<()> {
             &config, m, &args.out, &prefix, &bin_dir, &stop_flag, &recording,
         )?);
     }
-    print!("{}", table(&results, &config.method));
     let path = args.out.join("report.json");
     let json =
         serde_json::json!({ "config": config, "paper": PAPER_FIGURES, "placements": results });
-    std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n")
-        .with_context(|| format!("{}: cannot write", path.display()))?;
+    let text = serde_json::to_string_pretty(&json)? + "\n";
+    std::fs::write(&path, &text).with_context(|| format!("{}: cannot write", path.display()))?;
+    if args.report == ReportFormat::Json {
+        print!("{text}");
+        return Ok(());
+    }
+    print!("{}", table(&results, &config.method));
+    print!("{}", latency_table(&results));
     println!(
         "report: {}  (per placement: {}/mirror<i>/{{report.json, recording.mcap, rig.toml, plan.csv, stages.log}})",
         path.display(),

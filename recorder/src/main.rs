@@ -126,6 +126,16 @@ fn run(args: Args) -> Result<()> {
         drop_frames: !args.no_drop,
     };
     let summary = record(&args.prefix, &args.out, options)?;
+    let mut stats = messages::stats::StageStats::new("recorder");
+    stats.count("frames_missed", summary.frames_missed);
+    stats.count(
+        "frames_dropped_queue_full",
+        summary.frames_dropped_queue_full,
+    );
+    for (topic, n) in &summary.messages {
+        stats.count(&format!("{topic}_written"), *n);
+    }
+    stats.finish();
     tracing::info!(
         file = %summary.path.display(),
         bytes = summary.file_bytes,

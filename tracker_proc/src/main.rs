@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
-use messages::{Bus, CameraMarkers, StereoDetections, encoding, topics};
+use messages::{Bus, CameraMarkers, StereoDetections, encoding, now_ns, topics};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use tracker_proc::Detector;
@@ -72,12 +72,23 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
     let publisher = bus.publisher::<StereoDetections>(topics::DETECTIONS)?;
     let (mut count, mut rejected) = (0u64, 0u64);
     let mut last_stamp = i64::MIN;
+    let mut last_seq: Option<u64> = None;
+    let mut stats = messages::stats::StageStats::new("tracker_proc");
+    stats.count("frames_missed", 0);
     let mut failure = None;
     tracing::info!(mirrored, "tracking");
     bus.wake()?.run(&[frames.listener()], None, || {
         loop {
+            let received_ns = now_ns();
             let step = frames.receive_with(|header, payload| -> Result<Option<StereoDetections>> {
                 let _span = tracing::trace_span!("tracker_step", seq = header.seq).entered();
+                // Frames overwritten in shared memory before we took them.
+                if let Some(last) = last_seq
+                    && header.seq > last + 1
+                {
+                    stats.count("frames_missed", header.seq - last - 1);
+                }
+                last_seq = Some(header.seq);
                 if let Err(why) = header.validate(payload.len()) {
                     tracing::warn!(seq = header.seq, why, "dropping a malformed frame");
                     return Ok(None);
@@ -125,6 +136,9 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
                         failure = Some(e.into());
                         return false;
                     }
+                    let now = now_ns();
+                    stats.record("receive_to_publish", now - received_ns);
+                    stats.record("capture_to_publish", now - det.stamp_ns);
                     count += 1;
                 }
                 Ok(Some(Ok(None))) => rejected += 1,
@@ -140,6 +154,8 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
             }
         }
     })?;
+    stats.count("rejected", rejected);
+    stats.finish();
     tracing::info!(frames = count, rejected, "tracker stopped");
     failure.map_or(Ok(()), Err)
 }
