@@ -78,9 +78,9 @@ enum ReportFormat {
     Json,
 }
 
-/// Recording and tracing settings of a run.
+/// Recording, live view and tracing settings of a run.
 #[derive(Debug, Clone)]
-struct Recording {
+struct RunExtras {
     enabled: bool,
     live_view: Option<u16>,
     config_path: PathBuf,
@@ -261,7 +261,7 @@ fn run_placement(
     prefix: &str,
     bin_dir: &Path,
     stop_flag: &AtomicBool,
-    recording: &Recording,
+    extras: &RunExtras,
 ) -> Result<PlacementResult> {
     let dir = out.join(format!("mirror{mirror}"));
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
@@ -274,7 +274,7 @@ fn run_placement(
     let _ = std::fs::remove_file(&report_path);
     let log = dir.join("stages.log");
     let _ = std::fs::remove_file(&log);
-    let trace_dir = recording.trace.then(|| dir.join("trace"));
+    let trace_dir = extras.trace.then(|| dir.join("trace"));
     if let Some(t) = &trace_dir {
         let _ = std::fs::remove_dir_all(t);
     }
@@ -291,7 +291,7 @@ fn run_placement(
     // The recorder first, so it sees every message; it is not restarted
     // (a restart would overwrite the file) and its failure does not stop the run.
     let recording_path = dir.join("recording.mcap");
-    let mut recorder = if recording.enabled {
+    let mut recorder = if extras.enabled {
         let mut args = vec![
             s("--prefix"),
             s(prefix),
@@ -303,7 +303,7 @@ fn run_placement(
             s("--attach"),
             plan_path.display().to_string(),
             s("--attach"),
-            recording.config_path.display().to_string(),
+            extras.config_path.display().to_string(),
             s("--meta"),
             format!("mirror={mirror}"),
             s("--meta"),
@@ -311,7 +311,7 @@ fn run_placement(
             s("--meta"),
             format!("fps={}", config.fps),
         ];
-        if let Some(port) = recording.live_view {
+        if let Some(port) = extras.live_view {
             args.extend([s("--live-view"), port.to_string()]);
         }
         Some(spawn(&launch, "recorder", &args)?)
@@ -690,7 +690,7 @@ fn run(args: Args) -> Result<()> {
     let base_prefix = args
         .prefix
         .unwrap_or_else(|| format!("run{}", std::process::id()));
-    let recording = Recording {
+    let extras = RunExtras {
         enabled: !args.no_record,
         live_view: args.live_view,
         config_path: args.config.clone(),
@@ -700,7 +700,7 @@ fn run(args: Args) -> Result<()> {
     for &m in &config.mirrors {
         let prefix = format!("{base_prefix}_m{m}");
         results.push(run_placement(
-            &config, m, &args.out, &prefix, &bin_dir, &stop_flag, &recording,
+            &config, m, &args.out, &prefix, &bin_dir, &stop_flag, &extras,
         )?);
     }
     let path = args.out.join("report.json");

@@ -41,6 +41,8 @@ pub struct Contents {
     /// Lossless messages that do not decode (malformed when published),
     /// skipped.
     pub undecodable: u64,
+    /// Pixel bytes (both images) of the largest frame.
+    pub largest_frame_bytes: usize,
     /// Set when the file ends early or is corrupt.
     pub damage: Option<Damage>,
 }
@@ -133,6 +135,10 @@ impl Recording {
             .visit(
                 |log_time, message| {
                     *contents.counts.entry(message.topic()).or_default() += 1;
+                    if let Message::Frame(_, pixels) = message {
+                        contents.largest_frame_bytes =
+                            contents.largest_frame_bytes.max(pixels.len());
+                    }
                     contents.time_range = Some(match contents.time_range {
                         None => (log_time, log_time),
                         Some((a, b)) => (a.min(log_time), b.max(log_time)),

@@ -92,18 +92,6 @@ struct Publishers {
     located: Option<Publisher<LocatedObject>>,
 }
 
-/// The largest frame in the recording, to size the frame publisher.
-fn largest_frame(recording: &Recording) -> Result<usize, String> {
-    let mut largest = 0;
-    recording.for_each(|_, m| {
-        if let Message::Frame(_, pixels) = m {
-            largest = largest.max(pixels.len());
-        }
-        Ok::<_, String>(true)
-    })?;
-    Ok(largest.max(1))
-}
-
 fn subscriber_count(bus: &Bus, topic: Topic) -> Result<usize, messages::BusError> {
     match topic {
         Topic::Frames => bus.frame_subscriber_count(topics::FRAMES),
@@ -154,7 +142,7 @@ pub fn replay(
         frames: if wants(Topic::Frames) {
             Some(bus.frame_publisher(
                 topics::FRAMES,
-                largest_frame(recording).map_err(anyhow::Error::msg)?,
+                recording.contents().largest_frame_bytes.max(1),
             )?)
         } else {
             None

@@ -308,6 +308,21 @@ fn python() -> PathBuf {
     venv
 }
 
+/// Runs `tests/python/<script>` with `args`: success and its output.
+fn run_python(script: &str, args: &[&str]) -> (bool, String) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("python")
+        .join(script);
+    let output = Command::new(python())
+        .arg(&script)
+        .args(args)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&output.stdout).to_string()
+        + &String::from_utf8_lossy(&output.stderr);
+    (output.status.success(), text)
+}
+
 #[test]
 fn an_independent_reader_sees_every_published_message_and_the_foxglove_schemas_decode() {
     let out = &live_run().out;
@@ -323,16 +338,11 @@ fn an_independent_reader_sees_every_published_message_and_the_foxglove_schemas_d
         "calibration": log.lines().filter(|l| l.contains(" calibration") && l.contains("revision=")).count(),
         "predictions": report["test_samples"],
     });
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/check_recording.py");
-    let output = Command::new(python())
-        .arg(&script)
-        .arg(recording_a())
-        .arg(expected.to_string())
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&output.stdout).to_string()
-        + &String::from_utf8_lossy(&output.stderr);
-    assert!(output.status.success(), "{text}");
+    let (ok, text) = run_python(
+        "check_recording.py",
+        &[recording_a().to_str().unwrap(), &expected.to_string()],
+    );
+    assert!(ok, "{text}");
     eprintln!("{text}");
 }
 
@@ -464,19 +474,12 @@ fn the_live_view_serves_foxglove_clients_while_recording() {
     let log = std::fs::read_to_string(&recorder_log).unwrap();
     let at = log.find("ws://127.0.0.1:").unwrap() + "ws://127.0.0.1:".len();
     let port: String = log[at..].chars().take_while(char::is_ascii_digit).collect();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/live_view_client.py");
-    let output = Command::new(python())
-        .arg(&script)
-        .arg(&port)
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&output.stdout).to_string()
-        + &String::from_utf8_lossy(&output.stderr);
+    let (ok, text) = run_python("live_view_client.py", &[&port]);
     interrupt(&mut replay.0);
     wait_exit(&mut replay.0, Duration::from_secs(20), "replay");
     interrupt(&mut recorder.0);
     assert!(wait_exit(&mut recorder.0, Duration::from_secs(30), "recorder").success());
-    assert!(output.status.success(), "{text}");
+    assert!(ok, "{text}");
     eprintln!("{text}");
 }
 
