@@ -175,6 +175,19 @@ impl<'a> Message<'a> {
         })
     }
 
+    /// The bytes it was decoded from: the inverse of [`Message::decode`].
+    pub fn to_bytes(&self) -> Vec<u8> {
+        match self {
+            Message::Frame(h, pixels) => [bytes_of(h), pixels].concat(),
+            Message::Detections(m) => bytes_of(m).to_vec(),
+            Message::JointState(m) => bytes_of(m).to_vec(),
+            Message::Sample(m) => bytes_of(m).to_vec(),
+            Message::Calibration(m) => bytes_of(m).to_vec(),
+            Message::Prediction(m) => bytes_of(m).to_vec(),
+            Message::Located(m) => bytes_of(m).to_vec(),
+        }
+    }
+
     /// The topic it travels on.
     pub fn topic(&self) -> Topic {
         match self {
@@ -227,6 +240,7 @@ mod tests {
         };
         let decoded = Message::decode(Topic::JointState, bytes_of(&js)).unwrap();
         assert_eq!(decoded, Message::JointState(js));
+        assert_eq!(decoded.to_bytes(), bytes_of(&js));
         assert_eq!(decoded.stamp_ns(), 42);
         let err = Message::decode(Topic::Detections, bytes_of(&js)).unwrap_err();
         assert!(err.contains("expected"), "{err}");

@@ -64,8 +64,19 @@ pub struct Recording {
 /// Called with the topic, log time and bytes of each message.
 type RawVisitor<'a> = &'a mut dyn FnMut(&str, u64, &[u8]);
 
-const NOT_MCAP: &str = "not an MCAP file (it does not start with the MCAP magic)";
 const MAGIC: &[u8] = b"\x89MCAP0\r\n";
+
+/// Opens `path` if it starts with the MCAP magic, positioned at its start.
+fn open_mcap(path: &Path) -> Result<std::fs::File, String> {
+    let mut file = std::fs::File::open(path).map_err(|e| format!("cannot read: {e}"))?;
+    let mut magic = [0u8; 8];
+    if file.read_exact(&mut magic).is_err() || magic != MAGIC {
+        return Err("not an MCAP file (it does not start with the MCAP magic)".into());
+    }
+    file.seek(SeekFrom::Start(0))
+        .map_err(|e| format!("cannot read: {e}"))?;
+    Ok(file)
+}
 /// The largest record or decompressed chunk accepted: a corrupt length
 /// field must not make the reader allocate without bound.
 const RECORD_LIMIT: usize = 512 << 20;
@@ -111,12 +122,7 @@ impl Recording {
             path: path.display().to_string(),
             message,
         };
-        let mut file = std::fs::File::open(path).map_err(|e| fail(format!("cannot read: {e}")))?;
-        let mut magic = [0u8; 8];
-        if file.read_exact(&mut magic).is_err() || magic != MAGIC {
-            return Err(fail(NOT_MCAP.into()));
-        }
-        Ok(())
+        open_mcap(path).map(|_| ()).map_err(fail)
     }
 
     /// Opens and scans `path`.
@@ -199,14 +205,7 @@ impl Recording {
         on_damage: impl FnOnce(Damage),
         mut raw: Option<RawVisitor<'_>>,
     ) -> Result<(), E> {
-        let mut file = std::fs::File::open(&self.path).map_err(|e| format!("cannot read: {e}"))?;
-        let mut magic = [0u8; 8];
-        let starts_right = file.read_exact(&mut magic).is_ok() && magic == MAGIC;
-        if !starts_right {
-            return Err(String::from(NOT_MCAP).into());
-        }
-        file.seek(SeekFrom::Start(0))
-            .map_err(|e| format!("cannot read: {e}"))?;
+        let mut file = open_mcap(&self.path)?;
         let mut reader = LinearReader::new_with_options(
             LinearReaderOptions::default()
                 .with_prevalidate_chunk_crcs(true)

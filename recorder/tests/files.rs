@@ -82,13 +82,14 @@ fn read_all(recording: &Recording) -> BTreeMap<Topic, Vec<Vec<u8>>> {
     let mut out: BTreeMap<Topic, Vec<Vec<u8>>> = BTreeMap::new();
     recording
         .for_each(|_, m| {
-            let bytes = match m {
-                Message::Frame(h, pixels) => [bytes_of(&h), pixels].concat(),
-                Message::JointState(j) => bytes_of(&j).to_vec(),
-                Message::Detections(d) => bytes_of(&d).to_vec(),
-                other => panic!("unexpected {other:?}"),
-            };
-            out.entry(m.topic()).or_default().push(bytes);
+            assert!(
+                matches!(
+                    m.topic(),
+                    Topic::Frames | Topic::JointState | Topic::Detections
+                ),
+                "unexpected {m:?}"
+            );
+            out.entry(m.topic()).or_default().push(m.to_bytes());
             Ok::<_, String>(true)
         })
         .unwrap();
@@ -174,8 +175,8 @@ fn truncated_and_corrupted_files_never_panic_and_keep_what_is_intact() {
         if let Ok(r) = Recording::open(&damaged) {
             let mut frames = Vec::new();
             let _ = r.for_each(|_, m| {
-                if let Message::Frame(h, p) = m {
-                    frames.push([bytes_of(&h), p].concat());
+                if let Message::Frame(..) = m {
+                    frames.push(m.to_bytes());
                 }
                 Ok::<_, String>(true)
             });

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use recorder::channels::{Message, Topic, bytes_of};
+use recorder::channels::Topic;
 use recorder::reader::Recording;
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 
@@ -19,16 +19,7 @@ fn lossless(path: &Path) -> BTreeMap<Topic, Vec<Vec<u8>>> {
     let mut out: BTreeMap<Topic, Vec<Vec<u8>>> = BTreeMap::new();
     recording
         .for_each(|_, m| {
-            let bytes = match m {
-                Message::Frame(h, pixels) => [bytes_of(&h), pixels].concat(),
-                Message::Detections(x) => bytes_of(&x).to_vec(),
-                Message::JointState(x) => bytes_of(&x).to_vec(),
-                Message::Sample(x) => bytes_of(&x).to_vec(),
-                Message::Calibration(x) => bytes_of(&x).to_vec(),
-                Message::Prediction(x) => bytes_of(&x).to_vec(),
-                Message::Located(x) => bytes_of(&x).to_vec(),
-            };
-            out.entry(m.topic()).or_default().push(bytes);
+            out.entry(m.topic()).or_default().push(m.to_bytes());
             Ok::<_, String>(true)
         })
         .unwrap();
