@@ -231,6 +231,21 @@ impl Renderer {
         &self.world
     }
 
+    /// Renders both cameras into new buffers sized by the rig (for tests and
+    /// benchmarks); see [`Renderer::render`].
+    pub fn render_pair(
+        &mut self,
+        q: &[f64],
+        arm_faces: Facing,
+        seq: u64,
+    ) -> Result<([Vec<u8>; 2], RenderTruth)> {
+        let i = self.world.rig.cameras[0].intrinsics;
+        let len = (i.width * i.height) as usize;
+        let (mut left, mut right) = (vec![0u8; len], vec![0u8; len]);
+        let truth = self.render(q, arm_faces, seq, &mut left, &mut right)?;
+        Ok(([left, right], truth))
+    }
+
     /// Renders both cameras for encoder readings `q` into `left` and `right`
     /// (mono8, width x height, no row padding); `seq` seeds the sensor noise.
     /// `arm_faces` says which way the wrist turns the arm's card.

@@ -47,20 +47,10 @@ fn rendered_frames(n: usize) -> Vec<Vec<u8>> {
                 stride: W,
                 encoding: encoding::MONO8,
             };
-            let mut bytes = bytes_of(&header).to_vec();
-            let (mut l, mut r) = (vec![0u8; (W * H) as usize], vec![0u8; (W * H) as usize]);
-            renderer
-                .render(
-                    s.joints.as_ref().unwrap(),
-                    Facing::Mirror,
-                    i as u64,
-                    &mut l,
-                    &mut r,
-                )
+            let ([l, r], _) = renderer
+                .render_pair(s.joints.as_ref().unwrap(), Facing::Mirror, i as u64)
                 .expect("render");
-            bytes.extend(l);
-            bytes.extend(r);
-            bytes
+            [bytes_of(&header), &l, &r].concat()
         })
         .collect()
 }

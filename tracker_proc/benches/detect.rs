@@ -29,15 +29,8 @@ fn frames() -> Vec<[Mat; 2]> {
         .iter()
         .enumerate()
         .map(|(i, s)| {
-            let (mut l, mut r) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);
-            renderer
-                .render(
-                    s.joints.as_ref().unwrap(),
-                    Facing::Mirror,
-                    i as u64,
-                    &mut l,
-                    &mut r,
-                )
+            let ([l, r], _) = renderer
+                .render_pair(s.joints.as_ref().unwrap(), Facing::Mirror, i as u64)
                 .unwrap();
             let mat = |v: Vec<u8>| {
                 Mat::from_slice(&v)

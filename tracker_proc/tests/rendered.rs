@@ -23,8 +23,7 @@ fn render(
     q: &[f64],
     facing: Facing,
 ) -> ([Mat; 2], camera_proc::render::RenderTruth) {
-    let (mut l, mut r) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);
-    let truth = renderer.render(q, facing, 0, &mut l, &mut r).unwrap();
+    let ([l, r], truth) = renderer.render_pair(q, facing, 0).unwrap();
     let mat = |v: Vec<u8>| {
         Mat::from_slice(&v)
             .unwrap()
