@@ -80,6 +80,7 @@ fn header(seq: u64, width: u32, height: u32) -> FrameHeader {
     FrameHeader {
         seq,
         stamp_ns: now_ns(),
+        published_ns: 0,
         width,
         height,
         stride: width,
@@ -101,56 +102,73 @@ fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()
     let (mut seq, mut after_done) = (0u64, 0u32);
     let period_ns = (1e9 / fps) as i64;
     let mut next_due = i64::MIN;
+    let (mut last_published, mut late) = (None::<i64>, 0u64);
     let mut failure = None;
     let mut stats = messages::stats::StageStats::new("camera_proc");
     tracing::info!(mirror, fps, "rendering the simulated head");
-    bus.wake()?.run(
-        &[joints.listener()],
-        Some(Duration::from_secs_f64(1.0 / fps)),
-        || {
-            loop {
-                match joints.receive() {
-                    Ok(Some(s)) => latest = Some(s),
-                    Ok(None) => break,
-                    Err(e) => {
-                        failure = Some(anyhow::Error::from(e));
-                        return false;
-                    }
-                }
-            }
-            let Some(state) = latest else { return true };
-            // Render on the frame clock only; joint-state wake-ups just update the pose.
-            let now = now_ns();
-            if now < next_due {
-                return true;
-            }
-            next_due = now + period_ns;
-            let h = header(seq, intr.width, intr.height);
-            let _span = tracing::trace_span!("camera_step", seq).entered();
-            match frames.publish(h, |left, right| {
-                renderer
-                    .render(state.joints(), facing(state.role), seq, left, right)
-                    .map(|_| ())
-            }) {
-                // The simulated capture: the frame's stamp to its publication (rendering).
-                Ok(Ok(())) => stats.record("capture_to_publish", now_ns() - h.stamp_ns),
-                Ok(Err(e)) => {
-                    failure = Some(e);
-                    return false;
-                }
+    // A fine tick keeps frames within a millisecond of their schedule.
+    let tick = Duration::from_nanos(period_ns as u64).min(Duration::from_millis(1));
+    bus.wake()?.run(&[joints.listener()], Some(tick), || {
+        loop {
+            match joints.receive() {
+                Ok(Some(s)) => latest = Some(s),
+                Ok(None) => break,
                 Err(e) => {
-                    failure = Some(e.into());
+                    failure = Some(anyhow::Error::from(e));
                     return false;
                 }
             }
-            seq += 1;
-            if state.phase == phase::DONE {
-                after_done += 1;
+        }
+        let Some(state) = latest else { return true };
+        // Render on the frame clock only; joint-state wake-ups just update the pose.
+        let now = now_ns();
+        if next_due == i64::MIN {
+            next_due = now;
+        }
+        if now < next_due {
+            return true;
+        }
+        // A whole period behind schedule (rendering too slow for the
+        // frame rate): count the frames that could not be made.
+        let behind = (now - next_due) / period_ns;
+        if behind > 0 {
+            late += behind as u64;
+            next_due = now;
+        }
+        next_due += period_ns;
+        let h = header(seq, intr.width, intr.height);
+        let _span = tracing::trace_span!("camera_step", seq).entered();
+        match frames.publish(h, |left, right| {
+            renderer
+                .render(state.joints(), facing(state.role), seq, left, right)
+                .map(|_| ())
+        }) {
+            // The simulated capture: the frame's stamp to its publication (rendering).
+            Ok(Ok(())) => {
+                let published = now_ns();
+                stats.record("capture_to_publish", published - h.stamp_ns);
+                if let Some(last) = last_published {
+                    stats.record("frame_interval", published - last);
+                }
+                last_published = Some(published);
             }
-            after_done <= tail_frames
-        },
-    )?;
+            Ok(Err(e)) => {
+                failure = Some(e);
+                return false;
+            }
+            Err(e) => {
+                failure = Some(e.into());
+                return false;
+            }
+        }
+        seq += 1;
+        if state.phase == phase::DONE {
+            after_done += 1;
+        }
+        after_done <= tail_frames
+    })?;
     stats.count("frames", seq);
+    stats.count("frames_late", late);
     stats.finish();
     if let Some(e) = failure {
         return Err(e);

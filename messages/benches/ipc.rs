@@ -10,8 +10,8 @@
 //!   lossless (the publisher waits for the subscriber) like replay does.
 //!
 //! Payloads from 64 B to 8 MB (a stereo 640x480 mono frame is 600 KiB). The
-//! publisher's `loan_slice` zero-fills each loan (the camera then renders
-//! over it), so that memset is part of the hop.
+//! publisher loans uninitialised memory, as the camera does (it renders over
+//! every byte), so nothing in the hop grows with the payload.
 //!
 //! Run: `cargo bench -p messages --bench ipc` (writes
 //! `target/bench/ipc.json`); under `cargo test` a quick pass only.
@@ -32,6 +32,7 @@ fn header(seq: u64, bytes: usize) -> FrameHeader {
     FrameHeader {
         seq,
         stamp_ns: now_ns(),
+        published_ns: 0, // set by publish
         width,
         height: half / width,
         stride: width,

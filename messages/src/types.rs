@@ -22,13 +22,16 @@ pub mod encoding {
 /// User header of a stereo frame; the payload holds the left then the right
 /// image, each `height * stride` bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, Pod, Zeroable)]
-#[type_name("mirror.FrameHeader.v1")]
+#[type_name("mirror.FrameHeader.v2")]
 #[repr(C)]
 pub struct FrameHeader {
     /// Frame sequence number.
     pub seq: u64,
     /// Capture time, ns.
     pub stamp_ns: i64,
+    /// When the frame was handed to the pipeline (published into shared
+    /// memory), ns: where the pipeline's own latency starts.
+    pub published_ns: i64,
     /// Image width, px.
     pub width: u32,
     /// Image height, px.
@@ -140,13 +143,15 @@ impl CameraMarkers {
 
 /// Detections of one stereo frame.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
-#[type_name("mirror.StereoDetections.v1")]
+#[type_name("mirror.StereoDetections.v2")]
 #[repr(C)]
 pub struct StereoDetections {
     /// The frame's sequence number.
     pub seq: u64,
     /// The frame's capture time, ns.
     pub stamp_ns: i64,
+    /// The frame's [`FrameHeader::published_ns`].
+    pub frame_published_ns: i64,
     /// Left then right.
     pub cameras: [CameraMarkers; 2],
 }
@@ -352,10 +357,10 @@ pub struct LocatedObject {
 
 // No implicit padding: each size equals the sum of its fields.
 const _: () = {
-    assert!(size_of::<FrameHeader>() == 8 + 8 + 4 * 4);
+    assert!(size_of::<FrameHeader>() == 8 * 3 + 4 * 4);
     assert!(size_of::<Marker>() == 4 + 4 + 8 * 8 + 2 * 8);
     assert!(size_of::<CameraMarkers>() == 8 + MAX_MARKERS * size_of::<Marker>());
-    assert!(size_of::<StereoDetections>() == 16 + 2 * size_of::<CameraMarkers>());
+    assert!(size_of::<StereoDetections>() == 24 + 2 * size_of::<CameraMarkers>());
     assert!(size_of::<JointState>() == 8 * 3 + 4 * 4 + 8 * MAX_JOINTS + 24);
     assert!(size_of::<MirrorSample>() == 16 + 8 + 8 * MAX_JOINTS + 24 + 32 + 24);
     assert!(size_of::<CameraPose>() == 12 * 8);

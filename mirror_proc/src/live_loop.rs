@@ -25,17 +25,28 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
     // Frame capture (detection stamp) to the moment its sample is published.
     let mut sample_latency_ns = Vec::new();
     let mut stats = messages::stats::StageStats::new("mirror_proc");
+    // When each recent frame entered the pipeline, by capture stamp: a
+    // sample names its frame by stamp.
+    let mut published_by_stamp = std::collections::VecDeque::<(i64, i64)>::new();
     tracing::info!(prefix, "mirror stage running");
     bus.wake()?
         .run(&[joints.listener(), detections.listener()], None, || {
             let mut step = || -> Result<bool> {
                 let mut outputs = Vec::new();
                 let mut received_ns = Vec::new();
+                let mut frames_published_ns = Vec::new();
                 while let Some(js) = joints.receive()? {
                     outputs.extend(live.push_joint_state(js));
                 }
                 while let Some(d) = detections.receive()? {
                     received_ns.push(now_ns());
+                    if d.frame_published_ns > 0 {
+                        frames_published_ns.push(d.frame_published_ns);
+                        if published_by_stamp.len() == 256 {
+                            published_by_stamp.pop_front();
+                        }
+                        published_by_stamp.push_back((d.stamp_ns, d.frame_published_ns));
+                    }
                     let _span = tracing::trace_span!("mirror_step", seq = d.seq).entered();
                     outputs.extend(live.push_detections(d));
                 }
@@ -46,6 +57,11 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
                             let latency = now_ns() - s.stamp_ns;
                             sample_latency_ns.push(latency);
                             stats.record("capture_to_sample", latency);
+                            if let Some(&(_, published)) =
+                                published_by_stamp.iter().find(|(t, _)| *t == s.stamp_ns)
+                            {
+                                stats.record("frame_to_sample", now_ns() - published);
+                            }
                         }
                         Output::Calibration(c) => {
                             tracing::info!(
@@ -66,6 +82,11 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
                 let now = now_ns();
                 for r in received_ns {
                     stats.record("receive_to_publish", now - r);
+                }
+                // End to end through the pipeline: from the frame's
+                // publication by the camera to the end of this wake.
+                for p in frames_published_ns {
+                    stats.record("frame_to_processed", now - p);
                 }
                 Ok(!live.finished())
             };

@@ -564,7 +564,10 @@ fn latency_table(results: &[PlacementResult]) -> String {
                 st.counters
                     .iter()
                     .filter(|(k, _)| {
-                        k.contains("missed") || k.contains("dropped") || k.contains("rejected")
+                        k.contains("missed")
+                            || k.contains("dropped")
+                            || k.contains("rejected")
+                            || k.contains("late")
                     })
                     .map(move |(k, v)| format!("{} {k} {v}", st.stage))
             })

@@ -42,6 +42,7 @@ fn rendered_frames(n: usize) -> Vec<Vec<u8>> {
             let header = FrameHeader {
                 seq: i as u64,
                 stamp_ns: i as i64 * 33_333_333,
+                published_ns: 0,
                 width: W,
                 height: H,
                 stride: W,

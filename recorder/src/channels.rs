@@ -16,7 +16,7 @@ pub const MESSAGE_ENCODING: &str = "x-mirror-repr-c";
 /// Schema encoding of the lossless channels: a JSON [`Layout`].
 pub const SCHEMA_ENCODING: &str = "x-mirror-layout+json";
 /// Type name of a recorded stereo frame: a [`FrameHeader`] then both images.
-pub const FRAME_TYPE_NAME: &str = "mirror.StereoFrame.v1";
+pub const FRAME_TYPE_NAME: &str = "mirror.StereoFrame.v2";
 
 /// A bus topic as recorded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -256,6 +256,7 @@ mod tests {
         let header = FrameHeader {
             seq: 1,
             stamp_ns: 5,
+            published_ns: 0,
             width: 4,
             height: 2,
             stride: 4,

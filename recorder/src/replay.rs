@@ -267,7 +267,7 @@ fn publish(p: &Publishers, message: &Message<'_>) -> anyhow::Result<()> {
         Message::Frame(header, pixels) => {
             if let Some(frames) = &p.frames {
                 frames
-                    .publish(header, |left, right| {
+                    .publish_as_recorded(header, |left, right| {
                         let (l, r) = pixels.split_at(left.len());
                         left.copy_from_slice(l);
                         right.copy_from_slice(r);

@@ -18,6 +18,7 @@ fn frame(seq: u64) -> Vec<u8> {
     let header = FrameHeader {
         seq,
         stamp_ns: 1_000_000 * seq as i64,
+        published_ns: 0,
         width: 64,
         height: 48,
         stride: 64,
@@ -213,7 +214,7 @@ fn foreign_files_and_unknown_layouts_are_refused_by_name() {
     ))
     .unwrap();
     let mut layout = Topic::Detections.layout();
-    layout.type_name = "mirror.StereoDetections.v2".into();
+    layout.type_name = "mirror.StereoDetections.v3".into();
     layout.size += 8;
     let schema = w
         .add_schema(
@@ -248,8 +249,8 @@ fn foreign_files_and_unknown_layouts_are_refused_by_name() {
     let e = Recording::open(&path).err().unwrap().to_string();
     assert!(
         e.contains("future.mcap")
-            && e.contains("mirror.StereoDetections.v2")
-            && e.contains("mirror.StereoDetections.v1"),
+            && e.contains("mirror.StereoDetections.v3")
+            && e.contains("mirror.StereoDetections.v2"),
         "{e}"
     );
 }

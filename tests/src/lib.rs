@@ -5,40 +5,53 @@ use std::path::PathBuf;
 use std::process::{Child, Command};
 use std::sync::OnceLock;
 
+/// The stage binaries, for `cargo build` or `cargo run`.
+pub const STAGE_PACKAGES: [&str; 6] = [
+    "camera_proc",
+    "tracker_proc",
+    "kinematics_proc",
+    "mirror_proc",
+    "pipeline",
+    "recorder",
+];
+
 /// Builds the stage binaries (test profile) once per test run and returns
 /// their directory.
 pub fn stage_binaries() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let status = Command::new(cargo)
-            // The test profile reuses what `cargo test` just compiled.
-            .args(["build", "--quiet", "--profile", "test", "--bins"])
-            .args([
-                "-p",
-                "camera_proc",
-                "-p",
-                "tracker_proc",
-                "-p",
-                "kinematics_proc",
-                "-p",
-                "mirror_proc",
-                "-p",
-                "pipeline",
-                "-p",
-                "recorder",
-            ])
-            .status()
-            .expect("cargo runs");
-        assert!(status.success(), "building the stage binaries failed");
-        // target/debug/deps/<test> -> target/debug
-        let exe = std::env::current_exe().expect("test executable");
-        exe.parent()
-            .and_then(|p| p.parent())
-            .expect("target dir")
-            .to_path_buf()
-    })
-    .clone()
+    // The test profile reuses what `cargo test` just compiled.
+    DIR.get_or_init(|| build_stage_binaries("test")).clone()
+}
+
+/// Builds the stage binaries optimised (for benchmarks) and returns their
+/// directory.
+pub fn release_stage_binaries() -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| build_stage_binaries("release")).clone()
+}
+
+fn build_stage_binaries(profile: &str) -> PathBuf {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut command = Command::new(cargo);
+    command.args(["build", "--quiet", "--profile", profile, "--bins"]);
+    for package in STAGE_PACKAGES {
+        command.args(["-p", package]);
+    }
+    let status = command.status().expect("cargo runs");
+    assert!(status.success(), "building the stage binaries failed");
+    // target/<dir>/deps/<test or bench> -> target/<dir>
+    let exe = std::env::current_exe().expect("test executable");
+    let built_beside_us = exe
+        .parent()
+        .and_then(|p| p.parent())
+        .expect("target dir")
+        .to_path_buf();
+    match profile {
+        "test" => built_beside_us,
+        // A benchmark runs from target/release already; anything else
+        // (a benchmark in test mode) finds release beside its own profile.
+        _ => built_beside_us.parent().expect("target dir").join(profile),
+    }
 }
 
 /// Kills its child when dropped, so a failing test leaves no process behind.

@@ -108,6 +108,7 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
                 let mut out = StereoDetections {
                     seq: header.seq,
                     stamp_ns: header.stamp_ns,
+                    frame_published_ns: header.published_ns,
                     ..Default::default()
                 };
                 for (k, image) in payload.chunks_exact(header.image_len()).enumerate().take(2) {
