@@ -94,11 +94,14 @@ fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()
     }
     let world = SimWorld::nico(mirror)?;
     let intr = world.rig.cameras[0].intrinsics;
+    let dof = world.rig.arm.as_ref().map_or(0, |a| a.dof());
     let mut renderer = Renderer::new(world)?;
     let bus = Bus::new(prefix, "camera_proc")?;
     let frames = bus.frame_publisher(topics::FRAMES, 2 * (intr.width * intr.height) as usize)?;
     let joints = bus.subscriber::<JointState>(topics::JOINT_STATE)?;
     let mut latest: Option<JointState> = None;
+    let mut rejections = messages::Rejections::default();
+    let mut order = messages::StampOrder::default();
     let (mut seq, mut after_done) = (0u64, 0u32);
     let period_ns = (1e9 / fps) as i64;
     let mut next_due = i64::MIN;
@@ -111,7 +114,12 @@ fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()
     bus.wake()?.run(&[joints.listener()], Some(tick), || {
         loop {
             match joints.receive() {
-                Ok(Some(s)) => latest = Some(s),
+                // A bad joint state would render nonsense or fail the
+                // render: dropped, and the last good pose kept.
+                Ok(Some(s)) => match s.fault(dof).map_or_else(|| order.check(s.stamp_ns), Err) {
+                    Err(why) => rejections.reject("joint state", s.seq, &why),
+                    Ok(()) => latest = Some(s),
+                },
                 Ok(None) => break,
                 Err(e) => {
                     failure = Some(anyhow::Error::from(e));
@@ -169,6 +177,7 @@ fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()
     })?;
     stats.count("frames", seq);
     stats.count("frames_late", late);
+    stats.count("joint_states_rejected", rejections.count());
     stats.finish();
     if let Some(e) = failure {
         return Err(e);

@@ -53,6 +53,13 @@ impl Bus {
         }
         // iceoryx2 warns that no config file exists; its defaults are what we use.
         set_log_level_from_env_or(LogLevel::Error);
+        let removed = remove_dead_nodes();
+        if removed > 0 {
+            tracing::info!(
+                removed,
+                "removed the shared memory left by crashed processes"
+            );
+        }
         let node_name = NodeName::new(name).map_err(|e| err("node name")(&e))?;
         let node = NodeBuilder::new()
             .name(&node_name)
@@ -245,15 +252,22 @@ impl Bus {
             .number_of_subscribers())
     }
 
-    /// Opens (creating if needed) the service of every topic and keeps them
+    /// Opens (creating if needed) the services of every topic and keeps them
     /// for as long as the returned value lives, so that they exist with this
-    /// bus's settings before any stage starts.
+    /// bus's settings before any stage starts, and outlive any stage: when a
+    /// crashed stage is cleaned up, only its ports go, never a service
+    /// another stage is about to reattach to.
     pub fn open_all(&self) -> Result<OpenServices, BusError> {
         use crate::{
             CalibrationMsg, JointState, LocatedObject, MirrorSample, Prediction, StereoDetections,
             topics,
         };
+        let mut events = Vec::new();
+        for topic in std::iter::once(topics::FRAMES).chain(topics::ALL_SMALL) {
+            events.push(self.event(topic)?);
+        }
         Ok(OpenServices {
+            _events: events,
             _frames: self.frame_service(topics::FRAMES)?,
             _small: (
                 self.small_service::<StereoDetections>(topics::DETECTIONS)?,
@@ -276,8 +290,30 @@ impl Bus {
     }
 }
 
-/// Every topic's service, held open (see [`Bus::open_all`]).
+/// Removes what processes that died without cleaning up (SIGKILL, a crash)
+/// left in shared memory, and takes them off every service they were
+/// attached to; returns how many there were. Only the current user's nodes
+/// can be seen and removed. (iceoryx2 also does this when a node is created;
+/// doing it first lets the stage say so.)
+pub fn remove_dead_nodes() -> usize {
+    let mut removed = 0;
+    let listed = Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::Dead(view) = state
+            && view.try_remove_stale_resources().is_ok()
+        {
+            removed += 1;
+        }
+        CallbackProgression::Continue
+    });
+    if let Err(e) = listed {
+        tracing::warn!("cannot list the iceoryx2 nodes to remove dead ones: {e:?}");
+    }
+    removed
+}
+
+/// Every topic's services (data and event), held open (see [`Bus::open_all`]).
 pub struct OpenServices {
+    _events: Vec<PortFactoryEvent>,
     _frames: PortFactoryFrames,
     #[allow(clippy::type_complexity)]
     _small: (

@@ -26,6 +26,7 @@ mod types;
 
 pub use bus::{
     Bus, BusError, FramePublisher, FrameSubscriber, OpenServices, Publisher, Subscriber, Wake,
+    remove_dead_nodes,
 };
 pub use types::*;
 
@@ -54,6 +55,64 @@ pub mod topics {
         PREDICTIONS,
         LOCATED,
     ];
+}
+
+/// Counts the messages a stage drops as malformed and logs why: the first
+/// ten, then every hundredth, so that a flood of bad messages cannot flood
+/// the log.
+#[derive(Debug, Default)]
+pub struct Rejections {
+    count: u64,
+}
+
+impl Rejections {
+    /// Counts and (maybe) logs one dropped `what` (e.g. "frame") `seq`.
+    pub fn reject(&mut self, what: &str, seq: u64, why: &str) {
+        self.count += 1;
+        if self.count <= 10 || self.count.is_multiple_of(100) {
+            tracing::warn!(seq, rejected = self.count, "dropping a {what}: {why}");
+        }
+    }
+
+    /// Messages dropped so far.
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+}
+
+/// Keeps a stream's stamps moving forward: a message stamped at or before
+/// the last one taken is refused, unless [`StampOrder::RESYNC_AFTER`] in a
+/// row are, which means the last one taken was stamped wrong (far ahead)
+/// and must not hold back everything after it.
+#[derive(Debug)]
+pub struct StampOrder {
+    last: i64,
+    behind_in_a_row: u32,
+}
+
+impl Default for StampOrder {
+    fn default() -> Self {
+        Self {
+            last: i64::MIN,
+            behind_in_a_row: 0,
+        }
+    }
+}
+
+impl StampOrder {
+    /// Refused messages in a row after which the stream is taken as right.
+    pub const RESYNC_AFTER: u32 = 3;
+
+    /// Takes `stamp`, or says why not.
+    pub fn check(&mut self, stamp: i64) -> Result<(), String> {
+        if stamp <= self.last && self.behind_in_a_row < Self::RESYNC_AFTER {
+            self.behind_in_a_row += 1;
+            return Err(format!("stamp {stamp} not after {}", self.last));
+        }
+        self.behind_in_a_row = 0;
+        self.last = stamp;
+        Ok(())
+    }
 }
 
 /// CLOCK_MONOTONIC in nanoseconds: the one clock every stage stamps with,
@@ -108,5 +167,26 @@ pub fn stage_main(name: &str, run: impl FnOnce() -> anyhow::Result<()>) -> std::
             eprintln!("{name}: error: {e:#}");
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::StampOrder;
+
+    #[test]
+    fn stamp_order_refuses_the_past_and_recovers_from_a_stamp_far_ahead() {
+        let mut order = StampOrder::default();
+        assert!(order.check(10).is_ok());
+        assert!(order.check(10).is_err(), "a repeated stamp");
+        assert!(order.check(5).is_err(), "going back");
+        assert!(order.check(20).is_ok());
+        // One message stamped far ahead, then the real stream.
+        assert!(order.check(1_000_000).is_ok());
+        assert!(order.check(30).is_err());
+        assert!(order.check(40).is_err());
+        assert!(order.check(50).is_err());
+        assert!(order.check(60).is_ok(), "three in a row: the stream wins");
+        assert!(order.check(70).is_ok());
     }
 }

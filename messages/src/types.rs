@@ -8,6 +8,8 @@ use nalgebra::{Matrix3, Vector2, Vector3};
 pub const MAX_MARKERS: usize = 16;
 /// Most joints in a joint state.
 pub const MAX_JOINTS: usize = 8;
+/// Largest marker id accepted (the largest ArUco dictionary has 1024).
+pub const MAX_MARKER_ID: u32 = 1023;
 /// Largest image side accepted, px.
 pub const MAX_IMAGE_SIDE: u32 = 4096;
 
@@ -156,6 +158,35 @@ pub struct StereoDetections {
     pub cameras: [CameraMarkers; 2],
 }
 
+impl StereoDetections {
+    /// What makes this message unusable, if anything (stamps are the
+    /// receiver's to judge).
+    pub fn fault(&self) -> Option<String> {
+        for (k, c) in self.cameras.iter().enumerate() {
+            if c.count as usize > MAX_MARKERS {
+                return Some(format!("camera {k}: {} markers", c.count));
+            }
+            for m in c.iter() {
+                if !m
+                    .center
+                    .iter()
+                    .chain(m.corners.iter())
+                    .all(|v| v.is_finite())
+                {
+                    return Some(format!("camera {k}: marker {}: non-finite corner", m.id));
+                }
+                if m.id > MAX_MARKER_ID || m.mirrored > 1 {
+                    return Some(format!(
+                        "camera {k}: marker id {} (mirrored {}) out of range",
+                        m.id, m.mirrored
+                    ));
+                }
+            }
+        }
+        None
+    }
+}
+
 /// Motion phases of the arm.
 pub mod phase {
     /// Moving between poses.
@@ -205,6 +236,29 @@ impl JointState {
     /// The valid joint readings.
     pub fn joints(&self) -> &[f64] {
         &self.q[..(self.dof as usize).min(MAX_JOINTS)]
+    }
+
+    /// What makes this message unusable for an arm of `dof` joints, if
+    /// anything (stamps are the receiver's to judge).
+    pub fn fault(&self, dof: usize) -> Option<String> {
+        if self.dof as usize > MAX_JOINTS || self.dof as usize != dof {
+            return Some(format!("{} joints, the arm has {dof}", self.dof));
+        }
+        let finite = self
+            .joints()
+            .iter()
+            .chain(self.model_point.iter())
+            .all(|v| v.is_finite());
+        if !finite {
+            return Some("non-finite joint angle or model point".into());
+        }
+        if self.phase > phase::DONE || self.role > role::DIRECT {
+            return Some(format!(
+                "phase {} or role {} unknown",
+                self.phase, self.role
+            ));
+        }
+        None
     }
 }
 

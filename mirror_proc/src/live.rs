@@ -14,14 +14,14 @@
 //! through the newest calibration; other markers seen mirror-reversed in
 //! both cameras are located through the mirror cameras.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 use formats::evaluation::Evaluation;
 use geometry::triangulate::triangulate;
 use geometry::{Rig, Sample};
 use messages::{
     CalibrationMsg, CameraPose, JointState, LocatedObject, MAX_JOINTS, MirrorSample, Prediction,
-    StereoDetections, phase, role,
+    Rejections, StereoDetections, phase, role,
 };
 use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
@@ -77,8 +77,25 @@ pub struct Counters {
     pub paired: u64,
     /// Poses whose window closed without a usable detection.
     pub missed: u64,
-    /// Messages dropped as malformed (non-finite, stamps going backwards).
+    /// Messages dropped as malformed (non-finite values, counts, ids or
+    /// codes out of range, stamps repeated, going backwards or far ahead of
+    /// the other stream); the reasons are logged as warnings.
     pub rejected: u64,
+    /// Joint states that never arrived: gaps in their sequence numbers, and
+    /// those published before this stage started.
+    #[serde(default)]
+    pub joint_states_missed: u64,
+    /// Detections that never arrived, counted the same way.
+    #[serde(default)]
+    pub detections_missed: u64,
+    /// Times the joint-state or detection sequence started again (a restarted
+    /// kinematics stage or tracker).
+    #[serde(default)]
+    pub source_restarts: u64,
+    /// Settled poses that already had their sample (a restarted pose plan):
+    /// ignored, one sample per pose.
+    #[serde(default)]
+    pub poses_repeated: u64,
     /// Calibrations that failed (too few or degenerate samples so far).
     pub calibration_failures: u64,
 }
@@ -161,7 +178,17 @@ pub struct Live {
     last_error: Option<String>,
     counters: Counters,
     finished: bool,
+    poses_sampled: BTreeSet<u64>,
+    repeated_pose: Option<u64>,
+    last_joint_seq: Option<u64>,
+    last_detection_seq: Option<u64>,
+    rejections: Rejections,
 }
+
+/// How far one input stream's stamps may run ahead of the other's before a
+/// message is taken to be stamped wrongly: such a message would otherwise
+/// hold back the merge, or make every later message look late.
+pub const MAX_STREAM_SKEW_NS: i64 = 30_000_000_000;
 
 impl Live {
     /// A stage for `rig`.
@@ -183,7 +210,56 @@ impl Live {
             last_error: None,
             counters: Counters::default(),
             finished: false,
+            poses_sampled: BTreeSet::new(),
+            repeated_pose: None,
+            last_joint_seq: None,
+            last_detection_seq: None,
+            rejections: Rejections::default(),
         }
+    }
+
+    /// Counts messages that never arrived, from sequence numbers.
+    fn account_seq(last: &mut Option<u64>, seq: u64, missed: &mut u64, restarts: &mut u64) {
+        match *last {
+            // Published before this stage listened.
+            None => *missed += seq,
+            Some(l) if seq > l + 1 => *missed += seq - l - 1,
+            Some(l) if seq <= l => *restarts += 1,
+            Some(_) => {}
+        }
+        *last = Some(seq);
+    }
+
+    fn joint_state_fault(&self, js: &JointState) -> Option<String> {
+        js.fault(self.rig.arm.as_ref().map_or(0, |a| a.dof()))
+            .or_else(|| {
+                self.stamp_fault(
+                    js.stamp_ns,
+                    self.last_joint_stamp,
+                    self.last_detection_stamp,
+                )
+            })
+    }
+
+    fn detections_fault(&self, d: &StereoDetections) -> Option<String> {
+        d.fault().or_else(|| {
+            self.stamp_fault(d.stamp_ns, self.last_detection_stamp, self.last_joint_stamp)
+        })
+    }
+
+    fn stamp_fault(&self, stamp: i64, last_own: i64, last_other: i64) -> Option<String> {
+        if stamp <= last_own {
+            return Some(format!(
+                "stamp {stamp} repeats or goes back from {last_own}"
+            ));
+        }
+        if last_other != i64::MIN && stamp.saturating_sub(last_other) > MAX_STREAM_SKEW_NS {
+            return Some(format!(
+                "stamp {stamp} is {:.0} s ahead of the other stream",
+                (stamp - last_other) as f64 * 1e-9
+            ));
+        }
+        None
     }
 
     /// Whether the pose plan has ended and everything before its end is processed.
@@ -193,15 +269,17 @@ impl Live {
 
     /// Takes a joint state; returns what became ready.
     pub fn push_joint_state(&mut self, js: JointState) -> Vec<Output> {
-        let finite = js
-            .joints()
-            .iter()
-            .chain(js.model_point.iter())
-            .all(|v| v.is_finite());
-        if !finite || js.stamp_ns < self.last_joint_stamp || js.dof as usize > MAX_JOINTS {
+        if let Some(why) = self.joint_state_fault(&js) {
             self.counters.rejected += 1;
+            self.rejections.reject("joint state", js.seq, &why);
             return Vec::new();
         }
+        Self::account_seq(
+            &mut self.last_joint_seq,
+            js.seq,
+            &mut self.counters.joint_states_missed,
+            &mut self.counters.source_restarts,
+        );
         self.last_joint_stamp = js.stamp_ns;
         if js.phase == phase::DONE {
             self.joints_ended = true;
@@ -212,20 +290,17 @@ impl Live {
 
     /// Takes a stereo detection; returns what became ready.
     pub fn push_detections(&mut self, d: StereoDetections) -> Vec<Output> {
-        let finite = d.cameras.iter().flat_map(|c| c.iter()).all(|m| {
-            m.center
-                .iter()
-                .chain(m.corners.iter())
-                .all(|v| v.is_finite())
-        });
-        let counts_ok = d
-            .cameras
-            .iter()
-            .all(|c| c.count as usize <= messages::MAX_MARKERS);
-        if !finite || !counts_ok || d.stamp_ns < self.last_detection_stamp {
+        if let Some(why) = self.detections_fault(&d) {
             self.counters.rejected += 1;
+            self.rejections.reject("detection", d.seq, &why);
             return Vec::new();
         }
+        Self::account_seq(
+            &mut self.last_detection_seq,
+            d.seq,
+            &mut self.counters.detections_missed,
+            &mut self.counters.source_restarts,
+        );
         self.last_detection_stamp = d.stamp_ns;
         self.detections.push_back(d);
         self.drain()
@@ -285,6 +360,15 @@ impl Live {
             self.counters.missed += 1;
         }
         match js.phase {
+            // A pose plan started again (a restarted kinematics stage): one
+            // sample per pose, so the poses already sampled are skipped.
+            phase::SETTLED
+                if self.poses_sampled.contains(&js.pose) && self.repeated_pose != Some(js.pose) =>
+            {
+                self.counters.poses_repeated += 1;
+                self.repeated_pose = Some(js.pose);
+            }
+            phase::SETTLED if self.poses_sampled.contains(&js.pose) => {}
             phase::SETTLED => {
                 self.window = Some(Window {
                     opens_ns: js.stamp_ns + self.config.settle_margin_ns,
@@ -312,6 +396,7 @@ impl Live {
             if let [Some(l), Some(r)] = found {
                 w.done = true;
                 let state = w.state;
+                self.poses_sampled.insert(state.pose);
                 let pixels = [l.center, r.center];
                 self.add_sample(state, d.stamp_ns, pixels, out);
             }

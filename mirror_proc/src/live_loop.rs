@@ -104,6 +104,10 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
     let mut report = live.report();
     stats.count("detections_rejected", report.counters.rejected);
     stats.count("poses_missed", report.counters.missed);
+    stats.count("joint_states_missed", report.counters.joint_states_missed);
+    stats.count("detections_missed", report.counters.detections_missed);
+    stats.count("source_restarts", report.counters.source_restarts);
+    stats.count("poses_repeated", report.counters.poses_repeated);
     stats.finish();
     report.latency_ms = Latency::of(&sample_latency_ns);
     tracing::info!(

@@ -178,3 +178,167 @@ fn malformed_messages_are_dropped_and_counted() {
     live.push_detections(overfull);
     assert_eq!(live.report().counters.rejected, 4);
 }
+
+/// The streams interleaved by stamp, as they arrive live.
+fn by_stamp(joints: &[JointState], detections: &[StereoDetections]) -> Vec<bool> {
+    let (mut j, mut d, mut order) = (0, 0, Vec::new());
+    while j < joints.len() || d < detections.len() {
+        let take_joint = d == detections.len()
+            || (j < joints.len() && joints[j].stamp_ns <= detections[d].stamp_ns);
+        if take_joint {
+            j += 1
+        } else {
+            d += 1
+        }
+        order.push(take_joint);
+    }
+    order
+}
+
+/// A rogue publisher's messages amid the real ones: each is dropped and
+/// counted, and the outputs are exactly those of the clean run (nothing
+/// poisoned: not the merge, not the pairing, not the calibration).
+#[test]
+fn rogue_messages_are_dropped_without_poisoning_the_stage() {
+    let (joints, detections, _) = streams();
+    let (clean, _) = run(&by_stamp(&joints, &detections), &joints, &detections);
+    let mut live = Live::new(nico_scene().rig, LiveConfig::default());
+    let mut out = Vec::new();
+    let mut rogue = 0;
+    let (mut j, mut d) = (0, 0);
+    for take_joint in by_stamp(&joints, &detections) {
+        if take_joint {
+            let real = joints[j];
+            j += 1;
+            if j % 7 == 3 {
+                let bad = [
+                    JointState {
+                        q: [f64::INFINITY; 8],
+                        ..real
+                    },
+                    JointState { dof: 9, ..real },
+                    JointState { dof: 3, ..real },
+                    JointState { phase: 7, ..real },
+                    JointState { role: 5, ..real },
+                    JointState {
+                        stamp_ns: real.stamp_ns - 1_000_000_000,
+                        ..real
+                    },
+                    JointState {
+                        stamp_ns: i64::MAX,
+                        phase: phase::DONE,
+                        ..real
+                    },
+                ];
+                for b in bad {
+                    out.extend(live.push_joint_state(b));
+                    rogue += 1;
+                }
+            }
+            out.extend(live.push_joint_state(real));
+            // The same message again: a repeated stamp.
+            out.extend(live.push_joint_state(real));
+            rogue += 1;
+        } else {
+            let real = detections[d];
+            d += 1;
+            let mut nan = real;
+            nan.cameras[0].count = 1;
+            nan.cameras[0].markers[0].center = [f64::NAN, 1.0];
+            let mut overfull = real;
+            overfull.cameras[1].count = 99;
+            let mut bad_id = real;
+            bad_id.cameras[0].count = 1;
+            bad_id.cameras[0].markers[0].id = 5000;
+            let mut bad_flag = real;
+            bad_flag.cameras[1].count = 1;
+            bad_flag.cameras[1].markers[0].mirrored = 2;
+            let future = StereoDetections {
+                stamp_ns: real.stamp_ns + 3_600_000_000_000,
+                ..real
+            };
+            let backwards = StereoDetections {
+                stamp_ns: real.stamp_ns - 500_000_000,
+                ..real
+            };
+            // Backwards needs something to go back from.
+            let n = if d > 1 { 6 } else { 5 };
+            for b in [nan, overfull, bad_id, bad_flag, future, backwards]
+                .into_iter()
+                .take(n)
+            {
+                out.extend(live.push_detections(b));
+                rogue += 1;
+            }
+            out.extend(live.push_detections(real));
+        }
+    }
+    assert_eq!(out, clean);
+    let counters = live.report().counters;
+    assert_eq!(counters.rejected, rogue);
+    assert_eq!(counters.source_restarts, 0);
+}
+
+/// A restarted pose plan (kinematics restarted): the poses already sampled
+/// are skipped and counted, the others are paired when they come round again.
+#[test]
+fn a_restarted_pose_plan_gives_one_sample_per_pose() {
+    let (joints, detections, poses) = streams();
+    // The first run of the plan stops a third of the way in (no DONE);
+    // the second starts again from pose 0, later on the clock.
+    let cut = joints.len() / 3;
+    let shift = joints[cut].stamp_ns + 1_000_000;
+    let mut all_joints: Vec<JointState> = joints[..cut].to_vec();
+    all_joints.extend(joints.iter().map(|js| JointState {
+        stamp_ns: js.stamp_ns + shift,
+        ..*js
+    }));
+    let first_cut = detections.partition_point(|d| d.stamp_ns < joints[cut].stamp_ns);
+    let mut all_detections: Vec<StereoDetections> = detections[..first_cut].to_vec();
+    all_detections.extend(detections.iter().map(|d| StereoDetections {
+        stamp_ns: d.stamp_ns + shift,
+        seq: d.seq + first_cut as u64,
+        ..*d
+    }));
+    let (out, live) = run(
+        &by_stamp(&all_joints, &all_detections),
+        &all_joints,
+        &all_detections,
+    );
+    let samples: Vec<u64> = out
+        .iter()
+        .filter_map(|o| match o {
+            Output::Sample(s) => Some(s.pose),
+            _ => None,
+        })
+        .collect();
+    let mut unique = samples.clone();
+    unique.sort_unstable();
+    unique.dedup();
+    assert_eq!(
+        unique.len(),
+        samples.len(),
+        "a pose sampled twice: {samples:?}"
+    );
+    assert_eq!(samples.len(), poses, "every pose paired once");
+    let c = live.report().counters;
+    assert!(c.poses_repeated >= 3, "{c:?}");
+    assert_eq!(c.source_restarts, 1, "{c:?}");
+    assert!(live.finished());
+}
+
+/// A stage started late counts what it never saw.
+#[test]
+fn a_late_start_counts_the_messages_it_missed() {
+    let (joints, detections, _) = streams();
+    let (j0, d0) = (40, 12);
+    let (_, live) = run(
+        &by_stamp(&joints[j0..], &detections[d0..]),
+        &joints[j0..],
+        &detections[d0..],
+    );
+    let c = live.report().counters;
+    assert_eq!(c.joint_states_missed, j0 as u64);
+    assert_eq!(c.detections_missed, d0 as u64);
+    assert!(live.finished());
+}

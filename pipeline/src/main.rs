@@ -11,6 +11,7 @@
 //! `OUT/report.json`. Ctrl-C stops every stage cleanly.
 
 use std::io::IsTerminal;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::sync::Arc;
@@ -165,6 +166,16 @@ fn spawn(launch: &Launch<'_>, name: &str, args: &[String]) -> Result<Child> {
         command.env(messages::trace::TRACE_DIR_ENV, dir);
     }
     command.env(messages::stats::STATS_DIR_ENV, &launch.stats_dir);
+    // SAFETY: prctl(2) only, between fork and exec. The stages are told to
+    // stop (SIGTERM, so the recorder finishes its file) if the launcher dies.
+    unsafe {
+        command.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
     command
         .args(args)
         .stdout(Stdio::null())
@@ -288,6 +299,10 @@ fn run_placement(
     };
     let s = |v: &str| v.to_string();
     let started = Instant::now();
+    // The launcher holds every service for the whole run, so a stage that
+    // crashes never takes a service down with it (see Bus::open_all).
+    let bus = Bus::new(prefix, "pipeline")?;
+    let _services = bus.open_all()?;
     // The recorder first, so it sees every message; it is not restarted
     // (a restart would overwrite the file) and its failure does not stop the run.
     let recording_path = dir.join("recording.mcap");
@@ -356,7 +371,6 @@ fn run_placement(
         )?,
     ];
     // Start the arm only once every consumer listens.
-    let bus = Bus::new(prefix, "pipeline")?;
     let ready = Instant::now();
     loop {
         let frames = bus.frame_subscriber_count(topics::FRAMES)?;

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
-use messages::{Bus, CameraMarkers, StereoDetections, encoding, now_ns, topics};
+use messages::{Bus, CameraMarkers, StereoDetections, now_ns, topics};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use tracker_proc::Detector;
@@ -70,8 +70,9 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
     let bus = Bus::new(prefix, "tracker_proc")?;
     let frames = bus.frame_subscriber(topics::FRAMES)?;
     let publisher = bus.publisher::<StereoDetections>(topics::DETECTIONS)?;
-    let (mut count, mut rejected) = (0u64, 0u64);
-    let mut last_stamp = i64::MIN;
+    let mut count = 0u64;
+    let mut rejections = messages::Rejections::default();
+    let mut order = messages::StampOrder::default();
     let mut last_seq: Option<u64> = None;
     let mut stats = messages::stats::StageStats::new("tracker_proc");
     stats.count("frames_missed", 0);
@@ -82,28 +83,22 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
             let received_ns = now_ns();
             let step = frames.receive_with(|header, payload| -> Result<Option<StereoDetections>> {
                 let _span = tracing::trace_span!("tracker_step", seq = header.seq).entered();
-                // Frames overwritten in shared memory before we took them.
+                if let Err(why) = header.validate(payload.len()) {
+                    rejections.reject("frame", header.seq, &why);
+                    return Ok(None);
+                }
+                if let Err(why) = order.check(header.stamp_ns) {
+                    rejections.reject("frame", header.seq, &why);
+                    return Ok(None);
+                }
+                // Frames overwritten in shared memory before we took them
+                // (counted among the frames we could use).
                 if let Some(last) = last_seq
                     && header.seq > last + 1
                 {
                     stats.count("frames_missed", header.seq - last - 1);
                 }
                 last_seq = Some(header.seq);
-                if let Err(why) = header.validate(payload.len()) {
-                    tracing::warn!(seq = header.seq, why, "dropping a malformed frame");
-                    return Ok(None);
-                }
-                if header.encoding != encoding::MONO8 && header.encoding != encoding::BGR8 {
-                    return Ok(None);
-                }
-                if header.stamp_ns < last_stamp {
-                    tracing::warn!(
-                        seq = header.seq,
-                        "dropping a frame whose stamp goes backwards"
-                    );
-                    return Ok(None);
-                }
-                last_stamp = header.stamp_ns;
                 let channels = header.bytes_per_pixel().unwrap_or(1) as i32;
                 let mut out = StereoDetections {
                     seq: header.seq,
@@ -142,7 +137,7 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
                     stats.record("capture_to_publish", now - det.stamp_ns);
                     count += 1;
                 }
-                Ok(Some(Ok(None))) => rejected += 1,
+                Ok(Some(Ok(None))) => {}
                 Ok(Some(Err(e))) => {
                     failure = Some(e);
                     return false;
@@ -155,9 +150,13 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
             }
         }
     })?;
-    stats.count("rejected", rejected);
+    stats.count("rejected", rejections.count());
     stats.finish();
-    tracing::info!(frames = count, rejected, "tracker stopped");
+    tracing::info!(
+        frames = count,
+        rejected = rejections.count(),
+        "tracker stopped"
+    );
     failure.map_or(Ok(()), Err)
 }
 
