@@ -115,7 +115,8 @@ pub struct LiveReport {
     pub calibration: Option<formats::calibration::CalibrationFile>,
     /// Last position of each located object: id -> [x, y, z] mm.
     pub located: BTreeMap<u32, [f64; 3]>,
-    /// Why the last calibration attempt failed, if it did.
+    /// Why the last calibration attempt failed, if it did, or why there is
+    /// no calibration at all.
     pub last_error: Option<String>,
     /// Counters.
     pub counters: Counters,
@@ -358,6 +359,20 @@ impl Live {
             && !w.done
         {
             self.counters.missed += 1;
+            let n = self.counters.missed;
+            if n <= 10 || n.is_multiple_of(100) {
+                tracing::warn!(
+                    pose = w.state.pose,
+                    missed = n,
+                    "no sample: the arm's marker {} was not seen{} in both cameras while the pose held",
+                    self.config.arm_marker,
+                    if w.state.role == role::DIRECT {
+                        ""
+                    } else {
+                        " mirror-reversed"
+                    }
+                );
+            }
         }
         match js.phase {
             // A pose plan started again (a restarted kinematics stage): one
@@ -470,9 +485,18 @@ impl Live {
                 out.push(Output::Calibration(msg));
             }
             Err(e) => {
-                // Keep collecting: a later sample may make the problem well posed.
+                // Keep collecting: a later sample may make the problem well
+                // posed. Nothing is published; the reason is logged when it
+                // changes and kept for the report.
                 self.counters.calibration_failures += 1;
-                self.last_error = Some(e.to_string());
+                let why = e.to_string();
+                if self.last_error.as_ref() != Some(&why) {
+                    tracing::warn!(
+                        samples = self.train.len(),
+                        "cannot calibrate yet: {why}; collecting more samples"
+                    );
+                }
+                self.last_error = Some(why);
             }
         }
     }
@@ -555,7 +579,17 @@ impl Live {
             evaluation,
             calibration: self.calibration.as_ref().map(|c| c.to_file(&self.rig)),
             located: self.located.clone(),
-            last_error: self.last_error.clone(),
+            last_error: self.last_error.clone().or_else(|| {
+                self.calibration.is_none().then(|| {
+                    format!(
+                        "{} of the {} calibration samples needed so far; {} poses without the arm's marker {} in both cameras",
+                        self.train.len(),
+                        self.config.min_train,
+                        self.counters.missed,
+                        self.config.arm_marker
+                    )
+                })
+            }),
             counters: self.counters.clone(),
             latency_ms: None,
         }

@@ -342,3 +342,106 @@ fn a_late_start_counts_the_messages_it_missed() {
     assert_eq!(c.detections_missed, d0 as u64);
     assert!(live.finished());
 }
+
+fn outputs_of_kind(out: &[Output]) -> (usize, usize) {
+    let samples = out
+        .iter()
+        .filter(|o| matches!(o, Output::Sample(_)))
+        .count();
+    let calibrations = out
+        .iter()
+        .filter(|o| matches!(o, Output::Calibration(_)))
+        .count();
+    (samples, calibrations)
+}
+
+/// Bad geometry: the stage says why it cannot calibrate, publishes no
+/// calibration, and keeps pairing samples.
+#[test]
+fn bad_geometry_is_reported_and_nothing_is_published() {
+    let (joints, detections, poses) = streams();
+    let order = by_stamp(&joints, &detections);
+
+    // Too few samples: 12 calibration poses, 20 needed.
+    let mut live = Live::new(
+        nico_scene().rig,
+        LiveConfig {
+            min_train: 20,
+            ..LiveConfig::default()
+        },
+    );
+    let (mut j, mut d, mut out) = (0, 0, Vec::new());
+    for &take_joint in &order {
+        if take_joint {
+            out.extend(live.push_joint_state(joints[j]));
+            j += 1;
+        } else {
+            out.extend(live.push_detections(detections[d]));
+            d += 1;
+        }
+    }
+    assert_eq!(outputs_of_kind(&out), (poses, 0));
+    let why = live.report().last_error.unwrap();
+    assert!(why.contains("12 of the 20"), "{why}");
+
+    // Poses all alike: every pose is the first one.
+    let first = joints.iter().find(|js| js.phase == phase::SETTLED).unwrap();
+    let alike: Vec<JointState> = joints
+        .iter()
+        .map(|js| JointState {
+            q: first.q,
+            model_point: first.model_point,
+            ..*js
+        })
+        .collect();
+    let pixels = detections
+        .iter()
+        .find(|d| d.cameras[0].count > 0)
+        .unwrap()
+        .cameras;
+    let alike_detections: Vec<StereoDetections> = detections
+        .iter()
+        .map(|d| StereoDetections {
+            cameras: if d.cameras[0].count > 0 {
+                pixels
+            } else {
+                d.cameras
+            },
+            ..*d
+        })
+        .collect();
+    let (out, live) = run(&order, &alike, &alike_detections);
+    assert_eq!(
+        outputs_of_kind(&out),
+        (poses, 0),
+        "samples kept, no calibration"
+    );
+    let report = live.report();
+    assert!(report.counters.calibration_failures > 0);
+    let why = report.last_error.unwrap();
+    assert!(why.contains("nearly all the same"), "{why}");
+
+    // The arm's marker never seen (another marker is).
+    let unseen: Vec<StereoDetections> = detections
+        .iter()
+        .map(|d| {
+            let mut d = *d;
+            for c in &mut d.cameras {
+                for m in c.markers.iter_mut() {
+                    m.id = 3;
+                }
+            }
+            d
+        })
+        .collect();
+    let (out, live) = run(&order, &joints, &unseen);
+    assert_eq!(outputs_of_kind(&out), (0, 0));
+    let report = live.report();
+    assert_eq!(report.counters.missed, poses as u64);
+    let why = report.last_error.unwrap();
+    assert!(
+        why.contains("0 of the 8")
+            && why.contains(&format!("{poses} poses without the arm's marker")),
+        "{why}"
+    );
+}

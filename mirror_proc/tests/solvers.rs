@@ -259,3 +259,66 @@ fn a_mirror_through_a_camera_is_rejected() {
         );
     }
 }
+
+/// A mirror seen edge-on, its plane nearly along the cameras' view
+/// direction: refused with the angle, instead of a plane fitted along rays
+/// that do not determine it.
+#[test]
+fn a_mirror_seen_edge_on_is_rejected() {
+    let d = dataset(0, &NoiseModel::none(4), 10, 1);
+    let [left, right] = d.rig.cameras;
+    let normal = (right.center - left.center).normalize();
+    let middle = (left.center + right.center) / 2.0;
+    let plane = Plane::through(&middle, normal).unwrap();
+    let forward = left.camera_from_world.row(2).transpose();
+    let up = normal.cross(&forward).normalize();
+    let samples: Vec<Sample> = (0..20)
+        .map(|i| {
+            let (t, s, e) = (
+                400.0 + 25.0 * i as f64,
+                -100.0 + 10.0 * i as f64,
+                2.0 + (i % 5) as f64,
+            );
+            let j = middle + forward * t + up * s + normal * e;
+            let v = plane.reflect_point(&j);
+            Sample {
+                pose: i,
+                view: View::Mirror,
+                joints: None,
+                model_point: Some(j),
+                pixels: [left.project(&v).unwrap(), right.project(&v).unwrap()],
+            }
+        })
+        .collect();
+    // (joint+kinematics needs joint angles, which these samples lack.)
+    for method in [Method::Paper, Method::Joint] {
+        let e = calibrate(&d.rig, &samples, method).unwrap_err();
+        assert!(
+            matches!(e, CalibrateError::MirrorEdgeOn { grazing_deg } if grazing_deg < 5.0),
+            "{method}: {e}"
+        );
+        assert!(e.to_string().contains("edge-on"), "{e}");
+    }
+}
+
+/// Samples that do not fit one mirror (half of them paired with the wrong
+/// pose) give no calibration rather than a nonsense one.
+#[test]
+fn samples_from_no_single_mirror_are_rejected() {
+    let d = dataset(0, &NoiseModel::none(4), 20, 3);
+    let mut samples = d.train.clone();
+    let n = samples.len();
+    for i in 0..n / 2 {
+        let other = samples[n - 1 - i].pixels;
+        samples[i].pixels = other;
+    }
+    for method in [Method::Joint, Method::JointKinematics] {
+        match calibrate(&d.rig, &samples, method) {
+            Err(e) => assert!(
+                matches!(e, CalibrateError::PoorFit { rms_px } if rms_px > 25.0),
+                "{method}: {e}"
+            ),
+            Ok(c) => panic!("{method}: calibrated to {:.1} px RMS", c.train_rms_px),
+        }
+    }
+}

@@ -504,6 +504,12 @@ fn run_placement(
             .with_context(|| format!("{}: missing", report_path.display()))?,
     )
     .with_context(|| format!("{}: unreadable", report_path.display()))?;
+    if report.calibration.is_none() {
+        eprintln!(
+            "mirror {mirror}: no calibration: {}",
+            report.last_error.as_deref().unwrap_or("no reason given")
+        );
+    }
     // Against the simulator's truth.
     let truth_plane = data.truth.mirror.plane;
     let cal = report.calibration.as_ref();

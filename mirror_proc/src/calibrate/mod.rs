@@ -27,6 +27,16 @@ pub const MIN_SAMPLES: usize = 3;
 pub const MIN_SPREAD_MM: f64 = 10.0;
 /// Closest a camera may be to the estimated mirror plane, mm.
 pub const MIN_CAMERA_PLANE_DISTANCE_MM: f64 = 1.0;
+/// Smallest angle (median over the samples) at which the cameras' rays to
+/// the reflections may meet the mirror: below it the mirror is seen edge-on
+/// and its plane is not determined along the rays.
+pub const MIN_GRAZING_DEG: f64 = 5.0;
+/// Largest RMS reprojection error a calibration may leave on its own
+/// samples, px: above it the samples do not fit one mirror (wrong pairing,
+/// a mirror that moved) and the result is nonsense. Pixel noise of the
+/// paper's tracker (2.6 px) leaves under 4 px; half the samples paired with
+/// the wrong pose leave about 50 px.
+pub const MAX_TRAIN_RMS_PX: f64 = 25.0;
 
 /// A calibration method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -104,6 +114,22 @@ pub enum CalibrateError {
         camera: String,
         /// Its distance to the plane.
         distance_mm: f64,
+    },
+    /// The mirror is seen edge-on.
+    #[error(
+        "the mirror is seen edge-on: the cameras' rays meet it at {grazing_deg:.1} deg (median), need {MIN_GRAZING_DEG} deg"
+    )]
+    MirrorEdgeOn {
+        /// Median angle between the rays and the plane, degrees.
+        grazing_deg: f64,
+    },
+    /// The best fit does not explain the samples.
+    #[error(
+        "the best fit leaves {rms_px:.1} px RMS on its own samples (at most {MAX_TRAIN_RMS_PX} px): they do not fit one mirror"
+    )]
+    PoorFit {
+        /// RMS reprojection error on the training samples, px.
+        rms_px: f64,
     },
     /// The geometry does not determine a solution.
     #[error("{0}")]
@@ -274,6 +300,37 @@ pub(crate) fn check_plane_clear_of_cameras(rig: &Rig, plane: &Plane) -> Result<(
     Ok(())
 }
 
+/// Fails if the cameras see the plane edge-on: the median angle between the
+/// rays to the reflections `Ĵ` and the plane is under [`MIN_GRAZING_DEG`].
+pub(crate) fn check_plane_not_edge_on(
+    rig: &Rig,
+    plane: &Plane,
+    obs: &[Observation],
+) -> Result<(), CalibrateError> {
+    let mut angles: Vec<f64> = obs
+        .iter()
+        .flat_map(|o| {
+            rig.cameras.iter().map(move |c| {
+                let ray = (o.reflected_point - c.center).normalize();
+                plane
+                    .normal
+                    .dot(&ray)
+                    .abs()
+                    .clamp(0.0, 1.0)
+                    .asin()
+                    .to_degrees()
+            })
+        })
+        .collect();
+    angles.sort_by(f64::total_cmp);
+    let grazing_deg = angles.get(angles.len() / 2).copied().unwrap_or(f64::NAN);
+    // NaN fails too.
+    if !(grazing_deg >= MIN_GRAZING_DEG) {
+        return Err(CalibrateError::MirrorEdgeOn { grazing_deg });
+    }
+    Ok(())
+}
+
 /// RMS over samples and cameras of the Euclidean reprojection error.
 pub(crate) fn rms_px(residuals: &nalgebra::DVector<f64>) -> f64 {
     (residuals.norm_squared() / (residuals.len() as f64 / 2.0)).sqrt()
@@ -290,6 +347,7 @@ pub fn calibrate(
     // per-camera planes are it in each camera's frame.
     let start = midplane(obs.iter().map(|o| (o.model_point, o.reflected_point)))?;
     check_plane_clear_of_cameras(rig, &start)?;
+    check_plane_not_edge_on(rig, &start, &obs)?;
     let cal = match method {
         Method::Paper => paper::calibrate(rig, &obs)?,
         Method::Joint => joint::calibrate(rig, &obs, start, false)?,
@@ -303,6 +361,15 @@ pub fn calibrate(
     }) && cal.train_rms_px.is_finite();
     if !finite {
         return Err(GeometryError::NonFinite("calibration result").into());
+    }
+    if let Some(plane) = &cal.plane {
+        check_plane_clear_of_cameras(rig, plane)?;
+        check_plane_not_edge_on(rig, plane, &obs)?;
+    }
+    if cal.train_rms_px > MAX_TRAIN_RMS_PX {
+        return Err(CalibrateError::PoorFit {
+            rms_px: cal.train_rms_px,
+        });
     }
     Ok(cal)
 }
