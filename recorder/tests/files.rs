@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use messages::{FrameHeader, JointState, StereoDetections, encoding};
 use proptest::prelude::*;
-use recorder::channels::{Message, Topic, bytes_of, log_time};
+use recorder::channels::{Topic, bytes_of, log_time};
 use recorder::reader::Recording;
 use recorder::view::ViewBuilder;
 use recorder::writer::{Compression, Entry, WriterOptions, start};

@@ -325,7 +325,7 @@ pub(crate) fn check_plane_not_edge_on(
     angles.sort_by(f64::total_cmp);
     let grazing_deg = angles.get(angles.len() / 2).copied().unwrap_or(f64::NAN);
     // NaN fails too.
-    if !(grazing_deg >= MIN_GRAZING_DEG) {
+    if grazing_deg.is_nan() || grazing_deg < MIN_GRAZING_DEG {
         return Err(CalibrateError::MirrorEdgeOn { grazing_deg });
     }
     Ok(())
