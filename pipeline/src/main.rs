@@ -588,6 +588,8 @@ fn latency_table(results: &[PlacementResult]) -> String {
                             || k.contains("dropped")
                             || k.contains("rejected")
                             || k.contains("late")
+                            || k.contains("restarts")
+                            || k.contains("repeated")
                     })
                     .map(move |(k, v)| format!("{} {k} {v}", st.stage))
             })

@@ -20,6 +20,32 @@ pub struct ReadError {
     message: String,
 }
 
+impl ReadError {
+    /// The error for `path`. Text taken from the file (channel names, a
+    /// parser's message) is kept on one line: control characters are
+    /// escaped.
+    fn new(path: &Path, message: String) -> Self {
+        Self {
+            path: path.display().to_string(),
+            message: one_line(&message),
+        }
+    }
+}
+
+/// `text` with control characters (newlines included) escaped.
+pub(crate) fn one_line(text: &str) -> String {
+    text.chars()
+        .flat_map(|c| {
+            let escaped: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            escaped
+        })
+        .collect()
+}
+
 /// Where reading stopped early, if it did.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Damage {
@@ -89,10 +115,11 @@ fn lossless_topic(
     if channel.message_encoding != MESSAGE_ENCODING {
         return Ok(None);
     }
+    // Names from the file, on one line whatever bytes they hold.
+    let name = one_line(&channel.topic);
     let Some(topic) = Topic::from_name(&channel.topic) else {
         return Err(format!(
-            "channel `{}` is {MESSAGE_ENCODING} but not a topic this build knows",
-            channel.topic
+            "channel `{name}` is {MESSAGE_ENCODING} but not a topic this build knows"
         ));
     };
     let expected = topic.layout();
@@ -104,12 +131,13 @@ fn lossless_topic(
         Some(found) => Err(format!(
             "channel `{}` was recorded as {} ({} bytes); this build reads {} ({} bytes): \
              replay it with the version that recorded it",
-            channel.topic, found.type_name, found.size, expected.type_name, expected.size
+            name,
+            one_line(&found.type_name),
+            found.size,
+            expected.type_name,
+            expected.size
         )),
-        None => Err(format!(
-            "channel `{}` has no readable layout schema",
-            channel.topic
-        )),
+        None => Err(format!("channel `{name}` has no readable layout schema")),
     }
 }
 
@@ -118,20 +146,14 @@ impl Recording {
     /// scanning it.
     pub fn probe(path: impl AsRef<Path>) -> Result<(), ReadError> {
         let path = path.as_ref();
-        let fail = |message: String| ReadError {
-            path: path.display().to_string(),
-            message,
-        };
+        let fail = |message: String| ReadError::new(path, message);
         open_mcap(path).map(|_| ()).map_err(fail)
     }
 
     /// Opens and scans `path`.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, ReadError> {
         let path = path.as_ref().to_path_buf();
-        let fail = |message: String| ReadError {
-            path: path.display().to_string(),
-            message,
-        };
+        let fail = |message: String| ReadError::new(&path, message);
         let mut recording = Self {
             path: path.clone(),
             contents: Contents::default(),
@@ -192,10 +214,7 @@ impl Recording {
             |_| {},
             Some(&mut f),
         )
-        .map_err(|message| ReadError {
-            path: self.path.display().to_string(),
-            message,
-        })
+        .map_err(|message| ReadError::new(&self.path, message))
     }
 
     fn visit<E: From<String>>(
@@ -219,7 +238,7 @@ impl Recording {
             let event = match event {
                 Ok(e) => e,
                 Err(e) => {
-                    damage = Some(e.to_string());
+                    damage = Some(one_line(&e.to_string()));
                     break;
                 }
             };
@@ -240,7 +259,7 @@ impl Recording {
             let record = match mcap::parse_record(opcode, data) {
                 Ok(r) => r,
                 Err(e) => {
-                    damage = Some(e.to_string());
+                    damage = Some(one_line(&e.to_string()));
                     break;
                 }
             };
