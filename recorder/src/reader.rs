@@ -85,6 +85,9 @@ impl Contents {
 pub struct Recording {
     path: PathBuf,
     contents: Contents,
+    /// Bytes of the file that may be read: up to the first chunk that
+    /// cannot vouch for its contents (see [`trusted_length`]).
+    trusted: u64,
 }
 
 /// Called with the topic, log time and bytes of each message.
@@ -103,6 +106,56 @@ fn open_mcap(path: &Path) -> Result<std::fs::File, String> {
         .map_err(|e| format!("cannot read: {e}"))?;
     Ok(file)
 }
+/// How many bytes of the file, from its start, are framed so that every
+/// message in them is checked: the offset of the first chunk without a CRC
+/// (our recorder always writes one, so a zero there is damage, and MCAP
+/// readers skip the check for it) or of the first message outside a chunk,
+/// with what was found there; else the whole file.
+fn trusted_length(path: &Path) -> Result<(u64, Option<String>), String> {
+    let mut file = open_mcap(path)?;
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_emit_chunks(true)
+            .with_record_length_limit(RECORD_LIMIT),
+    );
+    let mut offset = MAGIC.len() as u64;
+    while let Some(event) = reader.next_event() {
+        let (opcode, data) = match event {
+            // Damage the reading pass reports itself.
+            Err(_) => break,
+            Ok(LinearReadEvent::ReadRequest(need)) => {
+                let n = file
+                    .read(reader.insert(need))
+                    .map_err(|e| format!("cannot read: {e}"))?;
+                if n == 0 {
+                    break;
+                }
+                reader.notify_read(n);
+                continue;
+            }
+            Ok(LinearReadEvent::Record { opcode, data }) => (opcode, data),
+        };
+        let unchecked = match opcode {
+            mcap::records::op::CHUNK => match mcap::parse_record(opcode, data) {
+                Ok(Record::Chunk { header, .. }) if header.uncompressed_crc == 0 => {
+                    Some(format!("the chunk at byte {offset} has no CRC"))
+                }
+                Ok(_) => None,
+                Err(e) => Some(format!("the chunk at byte {offset}: {e}")),
+            },
+            mcap::records::op::MESSAGE => {
+                Some(format!("a message outside a chunk at byte {offset}"))
+            }
+            _ => None,
+        };
+        if let Some(why) = unchecked {
+            return Ok((offset, Some(why)));
+        }
+        offset += 1 + 8 + data.len() as u64;
+    }
+    Ok((u64::MAX, None))
+}
+
 /// The largest record or decompressed chunk accepted: a corrupt length
 /// field must not make the reader allocate without bound.
 const RECORD_LIMIT: usize = 512 << 20;
@@ -154,9 +207,11 @@ impl Recording {
     pub fn open(path: impl AsRef<Path>) -> Result<Self, ReadError> {
         let path = path.as_ref().to_path_buf();
         let fail = |message: String| ReadError::new(&path, message);
+        let (trusted, unchecked) = trusted_length(&path).map_err(fail)?;
         let mut recording = Self {
             path: path.clone(),
             contents: Contents::default(),
+            trusted,
         };
         let mut contents = Contents::default();
         recording
@@ -181,6 +236,10 @@ impl Recording {
                 None,
             )
             .map_err(fail)?;
+        // Reading stops where the file stops vouching for its messages.
+        if let (Some(why), Some(damage)) = (unchecked, contents.damage.as_mut()) {
+            damage.error = format!("{why} ({})", damage.error);
+        }
         recording.contents = contents;
         Ok(recording)
     }
@@ -224,7 +283,7 @@ impl Recording {
         on_damage: impl FnOnce(Damage),
         mut raw: Option<RawVisitor<'_>>,
     ) -> Result<(), E> {
-        let mut file = open_mcap(&self.path)?;
+        let mut file = open_mcap(&self.path)?.take(self.trusted);
         let mut reader = LinearReader::new_with_options(
             LinearReaderOptions::default()
                 .with_prevalidate_chunk_crcs(true)
