@@ -88,7 +88,16 @@ fn run(
     joints: &[JointState],
     detections: &[StereoDetections],
 ) -> (Vec<Output>, Live) {
-    let mut live = Live::new(nico_scene().rig, LiveConfig::default());
+    run_with(LiveConfig::default(), order, joints, detections)
+}
+
+fn run_with(
+    config: LiveConfig,
+    order: &[bool],
+    joints: &[JointState],
+    detections: &[StereoDetections],
+) -> (Vec<Output>, Live) {
+    let mut live = Live::new(nico_scene().rig, config);
     let (mut j, mut d, mut out) = (0, 0, Vec::new());
     for &take_joint in order {
         if take_joint {
@@ -100,6 +109,18 @@ fn run(
         }
     }
     (out, live)
+}
+
+fn samples_and_calibrations(out: &[Output]) -> (usize, usize) {
+    let samples = out
+        .iter()
+        .filter(|o| matches!(o, Output::Sample(_)))
+        .count();
+    let calibrations = out
+        .iter()
+        .filter(|o| matches!(o, Output::Calibration(_)))
+        .count();
+    (samples, calibrations)
 }
 
 #[test]
@@ -135,14 +156,7 @@ fn any_interleaving_gives_the_same_outputs() {
     assert!(live_a.finished());
     assert_eq!(out_a, out_b);
     assert_eq!(out_a, out_c);
-    let samples = out_a
-        .iter()
-        .filter(|o| matches!(o, Output::Sample(_)))
-        .count();
-    let calibrations = out_a
-        .iter()
-        .filter(|o| matches!(o, Output::Calibration(_)))
-        .count();
+    let (samples, calibrations) = samples_and_calibrations(&out_a);
     let predictions = out_a
         .iter()
         .filter(|o| matches!(o, Output::Prediction(_)))
@@ -343,18 +357,6 @@ fn a_late_start_counts_the_messages_it_missed() {
     assert!(live.finished());
 }
 
-fn outputs_of_kind(out: &[Output]) -> (usize, usize) {
-    let samples = out
-        .iter()
-        .filter(|o| matches!(o, Output::Sample(_)))
-        .count();
-    let calibrations = out
-        .iter()
-        .filter(|o| matches!(o, Output::Calibration(_)))
-        .count();
-    (samples, calibrations)
-}
-
 /// Bad geometry: the stage says why it cannot calibrate, publishes no
 /// calibration, and keeps pairing samples.
 #[test]
@@ -363,24 +365,12 @@ fn bad_geometry_is_reported_and_nothing_is_published() {
     let order = by_stamp(&joints, &detections);
 
     // Too few samples: 12 calibration poses, 20 needed.
-    let mut live = Live::new(
-        nico_scene().rig,
-        LiveConfig {
-            min_train: 20,
-            ..LiveConfig::default()
-        },
-    );
-    let (mut j, mut d, mut out) = (0, 0, Vec::new());
-    for &take_joint in &order {
-        if take_joint {
-            out.extend(live.push_joint_state(joints[j]));
-            j += 1;
-        } else {
-            out.extend(live.push_detections(detections[d]));
-            d += 1;
-        }
-    }
-    assert_eq!(outputs_of_kind(&out), (poses, 0));
+    let config = LiveConfig {
+        min_train: 20,
+        ..LiveConfig::default()
+    };
+    let (out, live) = run_with(config, &order, &joints, &detections);
+    assert_eq!(samples_and_calibrations(&out), (poses, 0));
     let why = live.report().last_error.unwrap();
     assert!(why.contains("12 of the 20"), "{why}");
 
@@ -412,7 +402,7 @@ fn bad_geometry_is_reported_and_nothing_is_published() {
         .collect();
     let (out, live) = run(&order, &alike, &alike_detections);
     assert_eq!(
-        outputs_of_kind(&out),
+        samples_and_calibrations(&out),
         (poses, 0),
         "samples kept, no calibration"
     );
@@ -435,7 +425,7 @@ fn bad_geometry_is_reported_and_nothing_is_published() {
         })
         .collect();
     let (out, live) = run(&order, &joints, &unseen);
-    assert_eq!(outputs_of_kind(&out), (0, 0));
+    assert_eq!(samples_and_calibrations(&out), (0, 0));
     let report = live.report();
     assert_eq!(report.counters.missed, poses as u64);
     let why = report.last_error.unwrap();
