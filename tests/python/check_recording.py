@@ -18,8 +18,8 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 path, expected = sys.argv[1], json.loads(sys.argv[2])
 
 LOSSLESS = {
-    "frames": "mirror.StereoFrame.v1",
-    "detections": "mirror.StereoDetections.v1",
+    "frames": "mirror.StereoFrame.v2",
+    "detections": "mirror.StereoDetections.v2",
     "joint_state": "mirror.JointState.v1",
     "samples": "mirror.MirrorSample.v1",
     "calibration": "mirror.Calibration.v1",
