@@ -1,7 +1,12 @@
 //! One frame hop between two processes: iceoryx2 shared memory with event
 //! wake-up (our `Bus`, as the camera and tracker use it) against a copying
-//! baseline, a Unix domain socket carrying the same bytes, in the same run.
+//! baseline, a Unix domain socket carrying the same bytes (between two
+//! threads: the kernel copies in and out the same way between processes),
+//! in the same run.
 //!
+//! - Polled: the same hop with a receiver that spins on the subscriber
+//!   instead of sleeping until the event, which shows the transfer alone,
+//!   without the wake-up (the stages do not spin: two cores).
 //! - Latency: one message at a time (1 ms apart), from the publisher's stamp
 //!   to the subscriber holding the frame: publish-to-receive, one way, on
 //!   the shared CLOCK_MONOTONIC. The zero-copy subscriber reads the frame in
@@ -51,33 +56,43 @@ struct Figures {
 }
 
 /// The subscriber side, in its own process (this program run again with
-/// `IPC_BENCH_RECEIVER=prefix,lossless,latency_n,total`): prints the p50
-/// and p99 latency (us) and the stamp of the last frame received.
+/// `IPC_BENCH_RECEIVER=prefix,lossless,latency_n,total,poll`): prints the
+/// p50 and p99 latency (us) and the stamp of the last frame received. With
+/// `poll`, it spins on the subscriber instead of sleeping until the event.
 fn receiver_process(spec: &str) {
     let parts: Vec<&str> = spec.split(',').collect();
     let (prefix, lossless) = (parts[0], parts[1] == "1");
     let latency_n: usize = parts[2].parse().unwrap();
     let total: usize = parts[3].parse().unwrap();
+    let poll = parts[4] == "1";
     let bus = Bus::new(prefix, "ipc_sub").unwrap();
     let bus = if lossless { bus.lossless() } else { bus };
     let frames = bus.frame_subscriber("frames").unwrap();
     let mut latencies = histogram();
     let (mut received, mut last_ns) = (0usize, 0i64);
-    bus.wake()
-        .unwrap()
-        .run(&[frames.listener()], Some(Duration::from_secs(10)), || {
-            while let Some(stamp) = frames.receive_with(|h, _payload| h.stamp_ns).unwrap() {
-                last_ns = now_ns();
-                if received < latency_n {
-                    latencies
-                        .record(((last_ns - stamp) / 1000).max(1) as u64)
-                        .unwrap();
-                }
-                received += 1;
+    let mut take = || {
+        while let Some(stamp) = frames.receive_with(|h, _payload| h.stamp_ns).unwrap() {
+            last_ns = now_ns();
+            if received < latency_n {
+                latencies
+                    .record(((last_ns - stamp) / 1000).max(1) as u64)
+                    .unwrap();
             }
-            received < total
-        })
-        .unwrap();
+            received += 1;
+        }
+        received < total
+    };
+    if poll {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while take() && Instant::now() < deadline {
+            std::hint::spin_loop();
+        }
+    } else {
+        bus.wake()
+            .unwrap()
+            .run(&[frames.listener()], Some(Duration::from_secs(10)), take)
+            .unwrap();
+    }
     println!(
         "{} {} {} {}",
         latencies.value_at_quantile(0.5),
@@ -92,6 +107,7 @@ fn iceoryx2(
     latency_n: usize,
     throughput_n: usize,
     lossless: bool,
+    poll: bool,
     tag: &str,
 ) -> Figures {
     let prefix = format!("ipcbench{}_{tag}", std::process::id());
@@ -103,7 +119,11 @@ fn iceoryx2(
     let child = std::process::Command::new(std::env::current_exe().unwrap())
         .env(
             "IPC_BENCH_RECEIVER",
-            format!("{prefix},{},{latency_n},{total}", u8::from(lossless)),
+            format!(
+                "{prefix},{},{latency_n},{total},{}",
+                u8::from(lossless),
+                u8::from(poll)
+            ),
         )
         .stdout(std::process::Stdio::piped())
         .spawn()
@@ -197,41 +217,49 @@ fn main() {
         "frame hop between two processes, {latency_n} frames 1 ms apart for latency, {throughput_n} back to back for throughput"
     );
     println!(
-        "  {:>9} | {:>10} {:>10} {:>10} | {:>10} {:>10} {:>10} | {:>8} {:>8}",
+        "  {:>9} | {:>10} {:>10} {:>10} | {:>10} | {:>10} {:>10} {:>10} | {:>8} {:>8} {:>8}",
         "payload",
         "shm p50 us",
         "p99 us",
         "frames/s",
+        "polled p50",
         "uds p50 us",
         "p99 us",
         "frames/s",
         "p50 x",
+        "polled x",
         "rate x"
     );
     let mut rows = Vec::new();
     for (k, &bytes) in sizes.iter().enumerate() {
-        let shm = iceoryx2(bytes, latency_n, 0, false, &format!("l{k}"));
-        let shm_rate = iceoryx2(bytes, 0, throughput_n, true, &format!("t{k}"));
+        let shm = iceoryx2(bytes, latency_n, 0, false, false, &format!("l{k}"));
+        let polled = iceoryx2(bytes, latency_n, 0, false, true, &format!("p{k}"));
+        let shm_rate = iceoryx2(bytes, 0, throughput_n, true, false, &format!("t{k}"));
         let uds = socket(bytes, latency_n, throughput_n);
         let latency_ratio = uds.p50_us / shm.p50_us;
+        let polled_ratio = uds.p50_us / polled.p50_us;
         let rate_ratio = shm_rate.frames_per_s / uds.frames_per_s;
         println!(
-            "  {:>9} | {:>10.1} {:>10.1} {:>10.0} | {:>10.1} {:>10.1} {:>10.0} | {:>8.1} {:>8.1}",
+            "  {:>9} | {:>10.1} {:>10.1} {:>10.0} | {:>10.1} | {:>10.1} {:>10.1} {:>10.0} | {:>8.1} {:>8.1} {:>8.1}",
             bytes,
             shm.p50_us,
             shm.p99_us,
             shm_rate.frames_per_s,
+            polled.p50_us,
             uds.p50_us,
             uds.p99_us,
             uds.frames_per_s,
             latency_ratio,
+            polled_ratio,
             rate_ratio
         );
         rows.push(serde_json::json!({
             "bytes": bytes,
             "iceoryx2": { "p50_us": shm.p50_us, "p99_us": shm.p99_us, "frames_per_s": shm_rate.frames_per_s },
+            "iceoryx2_polled": { "p50_us": polled.p50_us, "p99_us": polled.p99_us },
             "unix_socket": { "p50_us": uds.p50_us, "p99_us": uds.p99_us, "frames_per_s": uds.frames_per_s },
             "latency_ratio": latency_ratio,
+            "polled_latency_ratio": polled_ratio,
             "throughput_ratio": rate_ratio,
         }));
     }
