@@ -485,6 +485,20 @@ fn shared_memory_is_private_and_a_crash_leaves_nothing_behind() {
     let bus = Bus::new(&prefix, "shm_test").unwrap();
     let _services = bus.open_all().unwrap();
     let mut first = start("first.log");
+    // Killed once it has all its ports: iceoryx2 0.10 cannot fully remove a
+    // node killed while creating one (see `remove_dead_nodes`).
+    let first_log = dir.path().join("first.log");
+    let started = Instant::now();
+    while !std::fs::read_to_string(&first_log)
+        .unwrap_or_default()
+        .contains("tracking")
+    {
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "tracker never came up"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let wait_attached = || {
         let started = Instant::now();
         while bus.frame_subscriber_count(topics::FRAMES).unwrap() < 1 {
