@@ -47,8 +47,6 @@ impl std::str::FromStr for Pace {
 /// What to replay and how.
 #[derive(Debug, Clone)]
 pub struct ReplayOptions {
-    /// Topics to publish.
-    pub topics: Vec<Topic>,
     /// Pace.
     pub pace: Pace,
     /// Skip messages logged earlier than this many seconds after the first.
@@ -104,16 +102,22 @@ fn subscriber_count(bus: &Bus, topic: Topic) -> Result<usize, messages::BusError
     }
 }
 
-/// The lossless services of a replay, created before anything else.
+/// The lossless services of a replay and its publishers, created before
+/// anything else.
 pub struct ReplayBus {
     bus: Bus,
+    topics: Vec<Topic>,
+    publishers: Publishers,
     _services: messages::OpenServices,
 }
 
 impl ReplayBus {
-    /// Creates every service of `prefix` lossless. Do this before the
-    /// stages start: they inherit the setting.
-    pub fn create(prefix: &str) -> anyhow::Result<Self> {
+    /// Creates every service of `prefix` lossless, and the publishers of
+    /// `topics` (frames sized for `recording`). Do this before the stages
+    /// start: they inherit the setting, and with overflow off iceoryx2 0.10
+    /// can lose the first samples to a subscriber that came before its
+    /// publisher (seen here as frames 4 and 5 missing in 1 of 4 replays).
+    pub fn create(prefix: &str, recording: &Recording, topics: &[Topic]) -> anyhow::Result<Self> {
         let bus = Bus::new(prefix, "replay")?.lossless();
         let services = bus.open_all().map_err(|e| {
             anyhow::anyhow!(
@@ -121,9 +125,46 @@ impl ReplayBus {
                  start; is a live pipeline using this prefix?)"
             )
         })?;
+        let publishers = Publishers::create(&bus, recording, topics)?;
         Ok(Self {
             bus,
+            topics: topics.to_vec(),
+            publishers,
             _services: services,
+        })
+    }
+}
+
+impl Publishers {
+    fn create(bus: &Bus, recording: &Recording, topics: &[Topic]) -> anyhow::Result<Self> {
+        let wants = |t: Topic| topics.contains(&t);
+        Ok(Self {
+            frames: if wants(Topic::Frames) {
+                Some(bus.frame_publisher(
+                    topics::FRAMES,
+                    recording.contents().largest_frame_bytes.max(1),
+                )?)
+            } else {
+                None
+            },
+            detections: wants(Topic::Detections)
+                .then(|| bus.publisher(topics::DETECTIONS))
+                .transpose()?,
+            joints: wants(Topic::JointState)
+                .then(|| bus.publisher(topics::JOINT_STATE))
+                .transpose()?,
+            samples: wants(Topic::Samples)
+                .then(|| bus.publisher(topics::SAMPLES))
+                .transpose()?,
+            calibrations: wants(Topic::Calibration)
+                .then(|| bus.publisher(topics::CALIBRATION))
+                .transpose()?,
+            predictions: wants(Topic::Predictions)
+                .then(|| bus.publisher(topics::PREDICTIONS))
+                .transpose()?,
+            located: wants(Topic::Located)
+                .then(|| bus.publisher(topics::LOCATED))
+                .transpose()?,
         })
     }
 }
@@ -137,37 +178,11 @@ pub fn replay(
     stop: &dyn Fn() -> bool,
 ) -> anyhow::Result<ReplayStats> {
     let bus = &replay_bus.bus;
-    let wants = |t: Topic| options.topics.contains(&t);
-    let p = Publishers {
-        frames: if wants(Topic::Frames) {
-            Some(bus.frame_publisher(
-                topics::FRAMES,
-                recording.contents().largest_frame_bytes.max(1),
-            )?)
-        } else {
-            None
-        },
-        detections: wants(Topic::Detections)
-            .then(|| bus.publisher(topics::DETECTIONS))
-            .transpose()?,
-        joints: wants(Topic::JointState)
-            .then(|| bus.publisher(topics::JOINT_STATE))
-            .transpose()?,
-        samples: wants(Topic::Samples)
-            .then(|| bus.publisher(topics::SAMPLES))
-            .transpose()?,
-        calibrations: wants(Topic::Calibration)
-            .then(|| bus.publisher(topics::CALIBRATION))
-            .transpose()?,
-        predictions: wants(Topic::Predictions)
-            .then(|| bus.publisher(topics::PREDICTIONS))
-            .transpose()?,
-        located: wants(Topic::Located)
-            .then(|| bus.publisher(topics::LOCATED))
-            .transpose()?,
-    };
+    let topics = &replay_bus.topics;
+    let wants = |t: Topic| topics.contains(&t);
+    let p = &replay_bus.publishers;
     let waiting = Instant::now();
-    for &t in &options.topics {
+    for &t in topics {
         while subscriber_count(bus, t)? < options.wait_subscribers {
             if stop() {
                 anyhow::bail!("interrupted while waiting for subscribers");
@@ -187,8 +202,7 @@ pub fn replay(
     let contents = recording.contents();
     let first = contents.time_range.map_or(0, |r| r.0);
     let start_at = first + (options.start_s.max(0.0) * 1e9) as u64;
-    let total: u64 = options
-        .topics
+    let total: u64 = topics
         .iter()
         .map(|t| contents.counts.get(t).copied().unwrap_or(0))
         .sum();
@@ -229,7 +243,7 @@ pub fn replay(
                     std::thread::sleep(wait);
                 }
             }
-            publish(&p, &message).map_err(|e| format!("{e:#}"))?;
+            publish(p, &message).map_err(|e| format!("{e:#}"))?;
             stats.published += 1;
             last_time = Some(log_time);
             bar.inc(1);

@@ -75,12 +75,12 @@ fn topics_of(args: &Args) -> Result<Vec<Topic>> {
 fn run(args: Args) -> Result<()> {
     let topics = topics_of(&args)?;
     Recording::probe(&args.file)?;
-    let bus = ReplayBus::create(&args.prefix)?;
+    let recording = Recording::open(&args.file)?;
+    let bus = ReplayBus::create(&args.prefix, &recording, &topics)?;
     tracing::info!(
         prefix = args.prefix,
         "services created; start the stages to re-run"
     );
-    let recording = Recording::open(&args.file)?;
     let contents = recording.contents();
     if let Some(d) = &contents.damage {
         tracing::warn!(
@@ -104,11 +104,10 @@ fn run(args: Args) -> Result<()> {
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))?;
     }
     let options = ReplayOptions {
-        topics,
         pace: args.pace,
         start_s: args.start,
         wait_subscribers: args.wait_subscribers,
-        wait_timeout: Duration::from_secs_f64(args.wait_timeout.max(0.0)),
+        wait_timeout: seconds("--wait-timeout", args.wait_timeout)?,
         progress: std::io::stderr().is_terminal(),
     };
     let stats = replay(&bus, &recording, &options, &|| stop.load(Ordering::SeqCst))?;
@@ -126,6 +125,12 @@ fn run(args: Args) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&stats)?);
     }
     Ok(())
+}
+
+/// A duration given in seconds on the command line.
+fn seconds(flag: &str, s: f64) -> Result<Duration> {
+    Duration::try_from_secs_f64(s)
+        .map_err(|_| anyhow::anyhow!("{flag}: `{s}` is not a number of seconds >= 0"))
 }
 
 fn main() -> ExitCode {
