@@ -7,12 +7,33 @@ mod faults;
 #[path = "pipeline_e2e/recording.rs"]
 mod recording;
 
-use std::path::PathBuf;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
+
+/// Waits up to `within` until `log` has a line containing `text`.
+pub fn wait_for_line(log: &Path, text: &str, within: Duration) {
+    let started = Instant::now();
+    loop {
+        if let Ok(f) = std::fs::File::open(log)
+            && BufReader::new(f)
+                .lines()
+                .any(|l| l.is_ok_and(|l| l.contains(text)))
+        {
+            return;
+        }
+        assert!(
+            started.elapsed() < within,
+            "no `{text}` in {} after {within:?}",
+            log.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
 
 /// One live run of the launcher (mirror 0, recorder on), shared by the
 /// tests of this binary.

@@ -16,6 +16,8 @@ use messages::{
 use serde_json::Value;
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 
+use super::wait_for_line;
+
 /// The launcher on mirror 0 (12 calibration, 5 + 3 test poses) with its
 /// stderr lines delivered to the caller as they come.
 struct Launcher {
@@ -487,18 +489,11 @@ fn shared_memory_is_private_and_a_crash_leaves_nothing_behind() {
     let mut first = start("first.log");
     // Killed once it has all its ports: iceoryx2 0.10 cannot fully remove a
     // node killed while creating one (see `remove_dead_nodes`).
-    let first_log = dir.path().join("first.log");
-    let started = Instant::now();
-    while !std::fs::read_to_string(&first_log)
-        .unwrap_or_default()
-        .contains("tracking")
-    {
-        assert!(
-            started.elapsed() < Duration::from_secs(30),
-            "tracker never came up"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_line(
+        &dir.path().join("first.log"),
+        "tracking",
+        Duration::from_secs(30),
+    );
     let wait_attached = || {
         let started = Instant::now();
         while bus.frame_subscriber_count(topics::FRAMES).unwrap() < 1 {

@@ -2,7 +2,6 @@
 //! independent MCAP reader, and written by a recorder killed mid-run.
 
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -11,7 +10,7 @@ use recorder::channels::Topic;
 use recorder::reader::Recording;
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 
-use super::live_run;
+use super::{live_run, wait_for_line};
 
 /// Every lossless message of a recording, per topic, as bytes.
 fn lossless(path: &Path) -> BTreeMap<Topic, Vec<Vec<u8>>> {
@@ -63,26 +62,6 @@ fn interrupt(child: &mut Child) {
         .unwrap();
 }
 
-/// Waits until `log` has a line containing `text`.
-fn wait_for_line(log: &Path, text: &str) {
-    let started = Instant::now();
-    loop {
-        if let Ok(f) = std::fs::File::open(log)
-            && BufReader::new(f)
-                .lines()
-                .any(|l| l.is_ok_and(|l| l.contains(text)))
-        {
-            return;
-        }
-        assert!(
-            started.elapsed() < Duration::from_secs(60),
-            "no `{text}` in {}",
-            log.display()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 /// Starts `replay` of the live recording on `prefix` and waits until its
 /// services exist (the stages must come after).
 fn start_replay(dir: &Path, prefix: &str, kind: &str, pace: &str, subscribers: &str) -> KillOnDrop {
@@ -103,7 +82,7 @@ fn start_replay(dir: &Path, prefix: &str, kind: &str, pace: &str, subscribers: &
         ],
         &log,
     );
-    wait_for_line(&log, "services created");
+    wait_for_line(&log, "services created", Duration::from_secs(60));
     replay
 }
 
@@ -461,7 +440,7 @@ fn the_live_view_serves_foxglove_clients_while_recording() {
         ],
         &recorder_log,
     );
-    wait_for_line(&recorder_log, "ws://127.0.0.1:");
+    wait_for_line(&recorder_log, "ws://127.0.0.1:", Duration::from_secs(60));
     let log = std::fs::read_to_string(&recorder_log).unwrap();
     let at = log.find("ws://127.0.0.1:").unwrap() + "ws://127.0.0.1:".len();
     let port: String = log[at..].chars().take_while(char::is_ascii_digit).collect();
