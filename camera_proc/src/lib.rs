@@ -1,5 +1,6 @@
 //! The camera stage: a renderer of what the simulated head sees
-//! ([`render`]) and readers of real footage ([`source`]).
+//! ([`render`]), readers of real footage ([`source`]), the frame schedule
+//! ([`clock`]) and the loops that publish frames ([`stage`]).
 //!
 //! ```no_run
 //! use camera_proc::render::{Facing, Renderer, SimWorld};
@@ -11,5 +12,8 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod clock;
 pub mod render;
+pub mod snapshot;
 pub mod source;
+pub mod stage;

@@ -2,6 +2,7 @@
 //! states with the end-effector model's position. For the simulated robot it
 //! is the arm's driver; a real robot would read its encoders here.
 
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -9,7 +10,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use kinematics_proc::{Motion, Timing, random_plan, read_plan};
-use messages::{Bus, JointState, MAX_JOINTS, now_ns, phase, topics};
+use messages::topics::{self, Topic};
+use messages::{Bus, JointState, MAX_JOINTS, now_ns, phase};
 
 /// Run a pose plan and publish the arm's joint states.
 #[derive(Debug, Parser)]
@@ -74,9 +76,9 @@ fn run(args: Args) -> Result<()> {
         home,
     );
     let bus = Bus::new(&args.prefix, "kinematics_proc")?;
-    let publisher = bus.publisher::<JointState>(topics::JOINT_STATE)?;
+    let publisher = bus.publisher::<topics::JointState>()?;
     let waited = Instant::now();
-    while bus.subscriber_count::<JointState>(topics::JOINT_STATE)? < args.wait_subscribers {
+    while bus.subscriber_count(topics::JointState::ID)? < args.wait_subscribers {
         if waited.elapsed() > Duration::from_secs(30) {
             bail!(
                 "{} subscribers on the joint states did not appear within 30 s",
@@ -92,12 +94,10 @@ fn run(args: Args) -> Result<()> {
     );
     let start = now_ns();
     let mut seq = 0u64;
-    let wake = bus.wake()?;
-    let mut failure = None;
-    wake.run(
+    bus.wake()?.run(
         &[],
         Some(Duration::from_secs_f64(1.0 / args.rate_hz)),
-        || {
+        || -> Result<_> {
             let stamp = now_ns();
             let state = motion.state_at(stamp - start);
             let planned = motion
@@ -113,25 +113,20 @@ fn run(args: Args) -> Result<()> {
                 ..JointState::default()
             };
             msg.q[..state.q.len()].copy_from_slice(&state.q);
-            match arm.end_effector(&state.q, &[]) {
-                Ok(j) => msg.model_point = j.into(),
-                Err(e) => {
-                    failure = Some(anyhow::anyhow!("forward kinematics: {e}"));
-                    return false;
-                }
-            }
+            msg.model_point = arm
+                .end_effector(&state.q, &[])
+                .context("forward kinematics")?
+                .into();
             seq += 1;
             let _span = tracing::trace_span!("kinematics_step", seq).entered();
-            if let Err(e) = publisher.send(msg) {
-                failure = Some(e.into());
-                return false;
-            }
-            state.phase != phase::DONE
+            publisher.send(msg).context("publishing joint states")?;
+            Ok(if state.phase == phase::DONE {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
         },
     )?;
-    if let Some(e) = failure {
-        return Err(e).context("publishing joint states");
-    }
     tracing::info!(states = seq, "pose plan done");
     Ok(())
 }

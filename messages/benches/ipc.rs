@@ -27,7 +27,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use hdrhistogram::Histogram;
-use messages::{Bus, FrameHeader, encoding, now_ns};
+use messages::{Bus, FrameHeader, encoding, now_ns, topics};
 
 /// Header of a frame whose two images total `bytes`.
 fn header(seq: u64, bytes: usize) -> FrameHeader {
@@ -67,7 +67,7 @@ fn receiver_process(spec: &str) {
     let poll = parts[4] == "1";
     let bus = Bus::new(prefix, "ipc_sub").unwrap();
     let bus = if lossless { bus.lossless() } else { bus };
-    let frames = bus.frame_subscriber("frames").unwrap();
+    let frames = bus.frame_subscriber::<topics::Frames>().unwrap();
     let mut latencies = histogram();
     let (mut received, mut last_ns) = (0usize, 0i64);
     let mut take = || {
@@ -90,7 +90,13 @@ fn receiver_process(spec: &str) {
     } else {
         bus.wake()
             .unwrap()
-            .run(&[frames.listener()], Some(Duration::from_secs(10)), take)
+            .run(&[frames.listener()], Some(Duration::from_secs(10)), || {
+                Ok::<_, messages::BusError>(if take() {
+                    std::ops::ControlFlow::Continue(())
+                } else {
+                    std::ops::ControlFlow::Break(())
+                })
+            })
             .unwrap();
     }
     println!(
@@ -115,7 +121,7 @@ fn iceoryx2(
     let bus = Bus::new(&prefix, "ipc_pub").unwrap();
     let bus = if lossless { bus.lossless() } else { bus };
     let _services = bus.open_all().unwrap();
-    let publisher = bus.frame_publisher("frames", bytes).unwrap();
+    let publisher = bus.frame_publisher::<topics::Frames>(bytes).unwrap();
     let child = std::process::Command::new(std::env::current_exe().unwrap())
         .env(
             "IPC_BENCH_RECEIVER",
@@ -128,14 +134,14 @@ fn iceoryx2(
         .stdout(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    while bus.frame_subscriber_count("frames").unwrap() < 1 {
+    while bus.subscriber_count(topics::TopicId::Frames).unwrap() < 1 {
         std::thread::sleep(Duration::from_millis(1));
     }
     // Let the subscriber reach its wait.
     std::thread::sleep(Duration::from_millis(50));
     let send = |seq: u64| {
         publisher
-            .publish(header(seq, bytes), |_, _| Ok::<(), ()>(()))
+            .publish(header(seq, bytes), |_, _| Ok::<_, ()>(true))
             .unwrap()
             .unwrap();
     };

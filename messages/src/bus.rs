@@ -1,7 +1,7 @@
 //! Opening services with the settings every process must agree on, and thin
 //! publisher/subscriber wrappers that pair each topic with its event service.
 
-use std::fmt::Debug;
+use std::ops::ControlFlow;
 use std::time::Duration;
 
 use iceoryx2::port::listener::Listener;
@@ -9,6 +9,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 
+use crate::topics::{FrameTopic, SmallTopic, TopicId, TopicVisitor};
 use crate::{FrameHeader, now_ns};
 
 /// Buffer of each subscriber of small messages: deep enough that nothing is
@@ -18,19 +19,33 @@ const SMALL_BUFFER: usize = 1024;
 const FRAME_BUFFER: usize = 4;
 const MAX_PORTS: usize = 16;
 
-/// A failure of the shared-memory transport.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{context}: {message}")]
+/// A failure of the shared-memory transport: what was being done, with
+/// iceoryx2's error as the source.
+#[derive(Debug, thiserror::Error)]
+#[error("{context}")]
 pub struct BusError {
     context: String,
-    message: String,
+    #[source]
+    source: Option<Box<dyn std::error::Error + Send + Sync>>,
 }
 
-fn err(context: impl Into<String>) -> impl FnOnce(&dyn Debug) -> BusError {
+impl BusError {
+    fn new(context: impl Into<String>) -> Self {
+        Self {
+            context: context.into(),
+            source: None,
+        }
+    }
+}
+
+/// Wraps an iceoryx2 error as the source of a [`BusError`] saying `context`.
+fn err<E: std::error::Error + Send + Sync + 'static>(
+    context: impl Into<String>,
+) -> impl FnOnce(E) -> BusError {
     let context = context.into();
     move |e| BusError {
         context,
-        message: format!("{e:?}"),
+        source: Some(Box::new(e)),
     }
 }
 
@@ -46,10 +61,9 @@ impl Bus {
     /// Joins the pipeline `prefix` as node `name`.
     pub fn new(prefix: &str, name: &str) -> Result<Self, BusError> {
         if prefix.is_empty() || prefix.contains(char::is_whitespace) {
-            return Err(BusError {
-                context: "prefix".into(),
-                message: format!("`{prefix}` is empty or has spaces"),
-            });
+            return Err(BusError::new(format!(
+                "prefix `{prefix}` is empty or has spaces"
+            )));
         }
         // iceoryx2 warns that no config file exists; its defaults are what we use.
         set_log_level_from_env_or(LogLevel::Error);
@@ -60,11 +74,11 @@ impl Bus {
                 "removed the shared memory left by crashed processes"
             );
         }
-        let node_name = NodeName::new(name).map_err(|e| err("node name")(&e))?;
+        let node_name = NodeName::new(name).map_err(err("node name"))?;
         let node = NodeBuilder::new()
             .name(&node_name)
             .create::<ipc::Service>()
-            .map_err(|e| err("creating the iceoryx2 node")(&e))?;
+            .map_err(err("creating the iceoryx2 node"))?;
         Ok(Self {
             node,
             prefix: prefix.to_string(),
@@ -91,7 +105,7 @@ impl Bus {
 
     fn name(&self, topic: &str, suffix: &str) -> Result<ServiceName, BusError> {
         let full = format!("mirror/{}/{topic}{suffix}", self.prefix);
-        ServiceName::new(&full).map_err(|e| err(format!("service name {full}"))(&e))
+        ServiceName::new(&full).map_err(err(format!("service name {full}")))
     }
 
     fn event(&self, topic: &str) -> Result<PortFactoryEvent, BusError> {
@@ -102,31 +116,28 @@ impl Bus {
             .max_listeners(MAX_PORTS)
             .max_nodes(MAX_PORTS * 2)
             .open_or_create()
-            .map_err(|e| err(format!("event service of {topic}"))(&e))
+            .map_err(err(format!("event service of {topic}")))
     }
 
     fn listener(&self, topic: &str) -> Result<Listener<ipc::Service>, BusError> {
         self.event(topic)?
             .listener_builder()
             .create()
-            .map_err(|e| err(format!("listener of {topic}"))(&e))
+            .map_err(err(format!("listener of {topic}")))
     }
 
     fn notifier(&self, topic: &str) -> Result<Notifier<ipc::Service>, BusError> {
         self.event(topic)?
             .notifier_builder()
             .create()
-            .map_err(|e| err(format!("notifier of {topic}"))(&e))
+            .map_err(err(format!("notifier of {topic}")))
     }
 
-    fn small_service<T: ZeroCopySend + Debug + 'static>(
-        &self,
-        topic: &str,
-    ) -> Result<PortFactoryPubSub<T>, BusError> {
+    fn small_service<T: SmallTopic>(&self) -> Result<PortFactoryPubSub<T::Message>, BusError> {
         let mut builder = self
             .node
-            .service_builder(&self.name(topic, "")?)
-            .publish_subscribe::<T>();
+            .service_builder(&self.name(T::NAME, "")?)
+            .publish_subscribe::<T::Message>();
         // Set only when lossless: setting it also demands it of an existing service.
         if self.lossless {
             builder = builder.enable_safe_overflow(false);
@@ -138,13 +149,13 @@ impl Bus {
             .max_subscribers(MAX_PORTS)
             .max_nodes(MAX_PORTS * 2)
             .open_or_create()
-            .map_err(|e| err(format!("service {topic}"))(&e))
+            .map_err(err(format!("service {}", T::NAME)))
     }
 
-    fn frame_service(&self, topic: &str) -> Result<PortFactoryFrames, BusError> {
+    fn frame_service<T: FrameTopic>(&self) -> Result<PortFactoryFrames, BusError> {
         let mut builder = self
             .node
-            .service_builder(&self.name(topic, "")?)
+            .service_builder(&self.name(T::NAME, "")?)
             .publish_subscribe::<[u8]>()
             .user_header::<FrameHeader>();
         if self.lossless {
@@ -157,127 +168,128 @@ impl Bus {
             .max_subscribers(MAX_PORTS)
             .max_nodes(MAX_PORTS * 2)
             .open_or_create()
-            .map_err(|e| err(format!("service {topic}"))(&e))
+            .map_err(err(format!("service {}", T::NAME)))
     }
 
-    /// A publisher of small fixed-size messages on `topic`.
-    pub fn publisher<T: ZeroCopySend + Debug + Copy + 'static>(
-        &self,
-        topic: &str,
-    ) -> Result<Publisher<T>, BusError> {
-        let service = self.small_service::<T>(topic)?;
-        let publisher = service
+    /// A publisher of topic `T`'s small fixed-size messages.
+    pub fn publisher<T: SmallTopic>(&self) -> Result<Publisher<T>, BusError> {
+        let publisher = self
+            .small_service::<T>()?
             .publisher_builder()
             .create()
-            .map_err(|e| err(format!("publisher of {topic}"))(&e))?;
-        let notifier = self.notifier(topic)?;
+            .map_err(err(format!("publisher of {}", T::NAME)))?;
         Ok(Publisher {
             publisher,
-            notifier,
-            topic: topic.into(),
+            notifier: self.notifier(T::NAME)?,
         })
     }
 
-    /// A subscriber of small fixed-size messages on `topic`.
-    pub fn subscriber<T: ZeroCopySend + Debug + Copy + 'static>(
-        &self,
-        topic: &str,
-    ) -> Result<Subscriber<T>, BusError> {
-        let service = self.small_service::<T>(topic)?;
-        let subscriber = service
+    /// A subscriber of topic `T`'s small fixed-size messages.
+    pub fn subscriber<T: SmallTopic>(&self) -> Result<Subscriber<T>, BusError> {
+        let subscriber = self
+            .small_service::<T>()?
             .subscriber_builder()
             .buffer_size(SMALL_BUFFER)
             .create()
-            .map_err(|e| err(format!("subscriber of {topic}"))(&e))?;
-        let listener = self.listener(topic)?;
+            .map_err(err(format!("subscriber of {}", T::NAME)))?;
         Ok(Subscriber {
             subscriber,
-            listener,
-            topic: topic.into(),
+            listener: self.listener(T::NAME)?,
         })
     }
 
-    /// A publisher of stereo frames of up to `max_bytes` (both images).
-    pub fn frame_publisher(
+    /// A publisher of stereo frames on topic `T` of up to `max_bytes` (both images).
+    pub fn frame_publisher<T: FrameTopic>(
         &self,
-        topic: &str,
         max_bytes: usize,
     ) -> Result<FramePublisher, BusError> {
-        let service = self.frame_service(topic)?;
-        let publisher = service
+        let publisher = self
+            .frame_service::<T>()?
             .publisher_builder()
             .initial_max_slice_len(max_bytes)
             .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .max_loaned_samples(2)
             .create()
-            .map_err(|e| err(format!("publisher of {topic}"))(&e))?;
-        let notifier = self.notifier(topic)?;
+            .map_err(err(format!("publisher of {}", T::NAME)))?;
         Ok(FramePublisher {
             publisher,
-            notifier,
+            notifier: self.notifier(T::NAME)?,
         })
     }
 
-    /// A subscriber of stereo frames.
-    pub fn frame_subscriber(&self, topic: &str) -> Result<FrameSubscriber, BusError> {
-        let service = self.frame_service(topic)?;
-        let subscriber = service
+    /// A subscriber of stereo frames on topic `T`.
+    pub fn frame_subscriber<T: FrameTopic>(&self) -> Result<FrameSubscriber, BusError> {
+        let subscriber = self
+            .frame_service::<T>()?
             .subscriber_builder()
             .buffer_size(FRAME_BUFFER)
             .create()
-            .map_err(|e| err(format!("subscriber of {topic}"))(&e))?;
-        let listener = self.listener(topic)?;
+            .map_err(err(format!("subscriber of {}", T::NAME)))?;
         Ok(FrameSubscriber {
             subscriber,
-            listener,
+            listener: self.listener(T::NAME)?,
         })
     }
 
-    /// Number of subscribers currently attached to `topic` (small messages).
-    pub fn subscriber_count<T: ZeroCopySend + Debug + Copy + 'static>(
-        &self,
-        topic: &str,
-    ) -> Result<usize, BusError> {
-        Ok(self
-            .small_service::<T>(topic)?
-            .dynamic_config()
-            .number_of_subscribers())
-    }
-
-    /// Number of subscribers currently attached to the frames `topic`.
-    pub fn frame_subscriber_count(&self, topic: &str) -> Result<usize, BusError> {
-        Ok(self
-            .frame_service(topic)?
-            .dynamic_config()
-            .number_of_subscribers())
-    }
-
-    /// Opens (creating if needed) the services of every topic and keeps them
-    /// for as long as the returned value lives, so that they exist with this
-    /// bus's settings before any stage starts, and outlive any stage: when a
-    /// crashed stage is cleaned up, only its ports go, never a service
-    /// another stage is about to reattach to.
-    pub fn open_all(&self) -> Result<OpenServices, BusError> {
-        use crate::{
-            CalibrationMsg, JointState, LocatedObject, MirrorSample, Prediction, StereoDetections,
-            topics,
-        };
-        let mut events = Vec::new();
-        for topic in std::iter::once(topics::FRAMES).chain(topics::ALL_SMALL) {
-            events.push(self.event(topic)?);
+    /// Number of subscribers currently attached to `topic`.
+    pub fn subscriber_count(&self, topic: TopicId) -> Result<usize, BusError> {
+        struct Count<'a>(&'a Bus);
+        impl TopicVisitor for Count<'_> {
+            type Output = Result<usize, BusError>;
+            fn small<T: SmallTopic>(self) -> Self::Output {
+                Ok(self
+                    .0
+                    .small_service::<T>()?
+                    .dynamic_config()
+                    .number_of_subscribers())
+            }
+            fn frames<T: FrameTopic>(self) -> Self::Output {
+                Ok(self
+                    .0
+                    .frame_service::<T>()?
+                    .dynamic_config()
+                    .number_of_subscribers())
+            }
         }
-        Ok(OpenServices {
-            _events: events,
-            _frames: self.frame_service(topics::FRAMES)?,
-            _small: (
-                self.small_service::<StereoDetections>(topics::DETECTIONS)?,
-                self.small_service::<JointState>(topics::JOINT_STATE)?,
-                self.small_service::<MirrorSample>(topics::SAMPLES)?,
-                self.small_service::<CalibrationMsg>(topics::CALIBRATION)?,
-                self.small_service::<Prediction>(topics::PREDICTIONS)?,
-                self.small_service::<LocatedObject>(topics::LOCATED)?,
-            ),
-        })
+        topic.visit(Count(self))
+    }
+
+    /// Whether `topic`'s data and event services exist (someone holds them
+    /// open), without creating them.
+    pub fn service_exists(&self, topic: TopicId) -> Result<bool, BusError> {
+        let exists = |name: &ServiceName, pattern| {
+            ipc::Service::does_exist(name, Config::global_config(), pattern)
+                .map_err(err(format!("looking up the services of {}", topic.name())))
+        };
+        Ok(exists(
+            &self.name(topic.name(), "")?,
+            MessagingPattern::PublishSubscribe,
+        )? && exists(&self.name(topic.name(), "/event")?, MessagingPattern::Event)?)
+    }
+
+    /// Opens (creating if needed) the services of every topic of the
+    /// [`crate::topics`] table and keeps them for as long as the returned
+    /// value lives, so that they exist with this bus's settings before any
+    /// stage starts, and outlive any stage: when a crashed stage is cleaned
+    /// up, only its ports go, never a service another stage is about to
+    /// reattach to.
+    pub fn open_all(&self) -> Result<OpenServices, BusError> {
+        struct Open<'a>(&'a Bus);
+        impl TopicVisitor for Open<'_> {
+            type Output = Result<Box<dyn std::any::Any>, BusError>;
+            fn small<T: SmallTopic>(self) -> Self::Output {
+                Ok(Box::new(self.0.small_service::<T>()?))
+            }
+            fn frames<T: FrameTopic>(self) -> Self::Output {
+                Ok(Box::new(self.0.frame_service::<T>()?))
+            }
+        }
+        let mut held = Vec::new();
+        for topic in TopicId::ALL {
+            held.push(topic.visit(Open(self))?);
+            held.push(Box::new(self.event(topic.name())?));
+        }
+        Ok(OpenServices { _held: held })
     }
 
     /// A waitset to sleep on the subscribers' events.
@@ -285,7 +297,7 @@ impl Bus {
         Ok(Wake {
             waitset: WaitSetBuilder::new()
                 .create::<ipc::Service>()
-                .map_err(|e| err("waitset")(&e))?,
+                .map_err(err("waitset"))?,
         })
     }
 }
@@ -320,17 +332,7 @@ pub fn remove_dead_nodes() -> usize {
 
 /// Every topic's services (data and event), held open (see [`Bus::open_all`]).
 pub struct OpenServices {
-    _events: Vec<PortFactoryEvent>,
-    _frames: PortFactoryFrames,
-    #[allow(clippy::type_complexity)]
-    _small: (
-        PortFactoryPubSub<crate::StereoDetections>,
-        PortFactoryPubSub<crate::JointState>,
-        PortFactoryPubSub<crate::MirrorSample>,
-        PortFactoryPubSub<crate::CalibrationMsg>,
-        PortFactoryPubSub<crate::Prediction>,
-        PortFactoryPubSub<crate::LocatedObject>,
-    ),
+    _held: Vec<Box<dyn std::any::Any>>,
 }
 
 type PortFactoryEvent = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
@@ -342,48 +344,46 @@ type PortFactoryFrames = iceoryx2::service::port_factory::publish_subscribe::Por
     FrameHeader,
 >;
 
-/// Publishes small messages and wakes the subscribers.
-pub struct Publisher<T: ZeroCopySend + Debug + Copy + 'static> {
-    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
+/// Publishes topic `T`'s messages and wakes the subscribers.
+pub struct Publisher<T: SmallTopic> {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T::Message, ()>,
     notifier: Notifier<ipc::Service>,
-    topic: String,
 }
 
-impl<T: ZeroCopySend + Debug + Copy + 'static> Publisher<T> {
+impl<T: SmallTopic> Publisher<T> {
     /// Sends a message (written straight into shared memory) and notifies.
-    pub fn send(&self, message: T) -> Result<(), BusError> {
+    pub fn send(&self, message: T::Message) -> Result<(), BusError> {
         let sample = self
             .publisher
             .loan_uninit()
-            .map_err(|e| err(format!("loan on {}", self.topic))(&e))?;
+            .map_err(err(format!("loan on {}", T::NAME)))?;
         sample
             .write_payload(message)
             .send()
-            .map_err(|e| err(format!("send on {}", self.topic))(&e))?;
+            .map_err(err(format!("send on {}", T::NAME)))?;
         self.notifier
             .notify()
-            .map_err(|e| err(format!("notify on {}", self.topic))(&e))?;
+            .map_err(err(format!("notify on {}", T::NAME)))?;
         Ok(())
     }
 }
 
-/// Receives small messages; its listener wakes a [`Wake`].
-pub struct Subscriber<T: ZeroCopySend + Debug + Copy + 'static> {
-    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
+/// Receives topic `T`'s messages; its listener wakes a [`Wake`].
+pub struct Subscriber<T: SmallTopic> {
+    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T::Message, ()>,
     listener: Listener<ipc::Service>,
-    topic: String,
 }
 
-impl<T: ZeroCopySend + Debug + Copy + 'static> Subscriber<T> {
+impl<T: SmallTopic> Subscriber<T> {
     /// The next message, if any (copied out: these are small).
-    pub fn receive(&self) -> Result<Option<T>, BusError> {
+    pub fn receive(&self) -> Result<Option<T::Message>, BusError> {
         self.listener
             .try_wait(|_| {})
-            .map_err(|e| err(format!("listener of {}", self.topic))(&e))?;
+            .map_err(err(format!("listener of {}", T::NAME)))?;
         Ok(self
             .subscriber
             .receive()
-            .map_err(|e| err(format!("receive on {}", self.topic))(&e))?
+            .map_err(err(format!("receive on {}", T::NAME)))?
             .map(|s| *s.payload()))
     }
 
@@ -403,12 +403,14 @@ impl FramePublisher {
     /// Loans `2 * header.image_len()` bytes, lets `fill` draw both images in
     /// place (left, right), stamps [`FrameHeader::published_ns`], then sends
     /// and notifies. `fill` must write every byte: the loan is not cleared
-    /// and holds an earlier frame.
+    /// and holds an earlier frame. It returns whether it made a frame (a
+    /// source at its end does not): only then is the frame sent, and
+    /// `publish` says whether it was.
     pub fn publish<E>(
         &self,
         header: FrameHeader,
-        fill: impl FnOnce(&mut [u8], &mut [u8]) -> Result<(), E>,
-    ) -> Result<Result<(), E>, BusError> {
+        fill: impl FnOnce(&mut [u8], &mut [u8]) -> Result<bool, E>,
+    ) -> Result<Result<bool, E>, BusError> {
         self.send_frame(header, true, fill)
     }
 
@@ -417,8 +419,8 @@ impl FramePublisher {
     pub fn publish_as_recorded<E>(
         &self,
         header: FrameHeader,
-        fill: impl FnOnce(&mut [u8], &mut [u8]) -> Result<(), E>,
-    ) -> Result<Result<(), E>, BusError> {
+        fill: impl FnOnce(&mut [u8], &mut [u8]) -> Result<bool, E>,
+    ) -> Result<Result<bool, E>, BusError> {
         self.send_frame(header, false, fill)
     }
 
@@ -426,8 +428,8 @@ impl FramePublisher {
         &self,
         header: FrameHeader,
         stamp: bool,
-        fill: impl FnOnce(&mut [u8], &mut [u8]) -> Result<(), E>,
-    ) -> Result<Result<(), E>, BusError> {
+        fill: impl FnOnce(&mut [u8], &mut [u8]) -> Result<bool, E>,
+    ) -> Result<Result<bool, E>, BusError> {
         let len = header.image_len();
         // Uninitialised as far as the types go: `loan_slice` would zero-fill
         // the 600 KiB of a stereo frame on every loan, which cost more than
@@ -435,7 +437,7 @@ impl FramePublisher {
         let mut sample = self
             .publisher
             .loan_slice_uninit(2 * len)
-            .map_err(|e| err("loan a frame")(&e))?;
+            .map_err(err("loan a frame"))?;
         *sample.user_header_mut() = header;
         let payload = sample.payload_mut();
         // SAFETY: the payload lies in a shared-memory segment mapped from
@@ -446,19 +448,20 @@ impl FramePublisher {
         let bytes: &mut [u8] =
             unsafe { &mut *(payload as *mut [std::mem::MaybeUninit<u8>] as *mut [u8]) };
         let (left, right) = bytes.split_at_mut(len);
-        if let Err(e) = fill(left, right) {
-            return Ok(Err(e));
+        match fill(left, right) {
+            Ok(true) => {}
+            // Dropping the loan returns it unsent.
+            Ok(false) => return Ok(Ok(false)),
+            Err(e) => return Ok(Err(e)),
         }
         if stamp {
             sample.user_header_mut().published_ns = now_ns();
         }
         // SAFETY: every byte is initialised (see above).
         let sample = unsafe { sample.assume_init() };
-        sample.send().map_err(|e| err("send a frame")(&e))?;
-        self.notifier
-            .notify()
-            .map_err(|e| err("notify a frame")(&e))?;
-        Ok(Ok(()))
+        sample.send().map_err(err("send a frame"))?;
+        self.notifier.notify().map_err(err("notify a frame"))?;
+        Ok(Ok(true))
     }
 }
 
@@ -476,12 +479,8 @@ impl FrameSubscriber {
     ) -> Result<Option<R>, BusError> {
         self.listener
             .try_wait(|_| {})
-            .map_err(|e| err("frame listener")(&e))?;
-        match self
-            .subscriber
-            .receive()
-            .map_err(|e| err("receive a frame")(&e))?
-        {
+            .map_err(err("frame listener"))?;
+        match self.subscriber.receive().map_err(err("receive a frame"))? {
             Some(sample) => Ok(Some(f(sample.user_header(), sample.payload()))),
             None => Ok(None),
         }
@@ -501,51 +500,57 @@ pub struct Wake {
 
 impl Wake {
     /// Runs `on_wake` each time any of `listeners` is notified or `tick`
-    /// passes, until it returns `false` or SIGINT/SIGTERM arrives (after
-    /// which it runs once more, to take what is waiting).
-    pub fn run(
+    /// passes, until it breaks or fails, or SIGINT/SIGTERM arrives (after
+    /// which it runs once more, to take what is waiting). Its error stops
+    /// the loop and is returned.
+    pub fn run<E: From<BusError>>(
         &self,
         listeners: &[&Listener<ipc::Service>],
         tick: Option<Duration>,
-        mut on_wake: impl FnMut() -> bool,
-    ) -> Result<(), BusError> {
+        mut on_wake: impl FnMut() -> Result<ControlFlow<()>, E>,
+    ) -> Result<(), E> {
         let mut guards = Vec::new();
         for l in listeners {
             guards.push(
                 self.waitset
                     .attach_notification(*l)
-                    .map_err(|e| err("attach a listener")(&e))?,
+                    .map_err(err("attach a listener"))?,
             );
         }
         let _interval = match tick {
             Some(period) => Some(
                 self.waitset
                     .attach_interval(period)
-                    .map_err(|e| err("attach an interval")(&e))?,
+                    .map_err(err("attach an interval"))?,
             ),
             None => None,
         };
         // Deliver anything that arrived before we attached.
-        if !on_wake() {
+        if on_wake()?.is_break() {
             return Ok(());
         }
+        let mut failure = None;
         let result = self
             .waitset
-            .wait_and_process(|_| {
-                if on_wake() {
-                    CallbackProgression::Continue
-                } else {
+            .wait_and_process(|_| match on_wake() {
+                Ok(ControlFlow::Continue(())) => CallbackProgression::Continue,
+                Ok(ControlFlow::Break(())) => CallbackProgression::Stop,
+                Err(e) => {
+                    failure = Some(e);
                     CallbackProgression::Stop
                 }
             })
-            .map_err(|e| err("waitset")(&e))?;
+            .map_err(err("waitset"))?;
+        if let Some(e) = failure {
+            return Err(e);
+        }
         // Stopped by a signal: handle what already arrived, so that a stage
         // stopped after its source has finished loses nothing.
         if matches!(
             result,
             WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest
         ) {
-            on_wake();
+            let _ = on_wake()?;
         }
         drop(guards);
         Ok(())

@@ -5,7 +5,8 @@
 //! size assertions below). Stereo frames travel as a `[u8]` slice (left
 //! image then right image) with a [`FrameHeader`] user header.
 //!
-//! Each topic is a publish-subscribe service `<prefix>/<topic>` plus an event
+//! Every topic is declared once, in the [`topics`] table, as a marker type
+//! that ports are typed by. Each topic is a publish-subscribe service `<prefix>/<topic>` plus an event
 //! service `<prefix>/<topic>/event`: publishers notify after sending, and
 //! subscribers sleep in a [`iceoryx2::waitset::WaitSet`] until notified, so
 //! nothing polls. The prefix keeps tests and parallel pipelines apart.
@@ -13,7 +14,7 @@
 //! ```no_run
 //! use messages::{Bus, JointState, topics};
 //! let bus = Bus::new("demo", "example")?;
-//! let publisher = bus.publisher::<JointState>(topics::JOINT_STATE)?;
+//! let publisher = bus.publisher::<topics::JointState>()?;
 //! publisher.send(JointState::default())?;
 //! # Ok::<(), messages::BusError>(())
 //! ```
@@ -21,6 +22,7 @@
 
 mod bus;
 pub mod stats;
+pub mod topics;
 pub mod trace;
 mod types;
 
@@ -29,33 +31,6 @@ pub use bus::{
     remove_dead_nodes,
 };
 pub use types::*;
-
-/// Topic names (appended to the prefix).
-pub mod topics {
-    /// Stereo frames, `[u8]` with a [`crate::FrameHeader`].
-    pub const FRAMES: &str = "frames";
-    /// [`crate::StereoDetections`].
-    pub const DETECTIONS: &str = "detections";
-    /// [`crate::JointState`].
-    pub const JOINT_STATE: &str = "joint_state";
-    /// [`crate::MirrorSample`].
-    pub const SAMPLES: &str = "samples";
-    /// [`crate::CalibrationMsg`].
-    pub const CALIBRATION: &str = "calibration";
-    /// [`crate::Prediction`].
-    pub const PREDICTIONS: &str = "predictions";
-    /// [`crate::LocatedObject`].
-    pub const LOCATED: &str = "located";
-    /// Every small-message topic, for tools that subscribe to all of them.
-    pub const ALL_SMALL: [&str; 6] = [
-        DETECTIONS,
-        JOINT_STATE,
-        SAMPLES,
-        CALIBRATION,
-        PREDICTIONS,
-        LOCATED,
-    ];
-}
 
 /// Counts the messages a stage drops as malformed and logs why: the first
 /// ten, then every hundredth, so that a flood of bad messages cannot flood

@@ -22,7 +22,8 @@ use anyhow::{Context, Result, bail};
 use clap::Parser;
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
 use kinematics_proc::{PlannedPose, write_plan};
-use messages::{Bus, CalibrationMsg, JointState, MirrorSample, StereoDetections, role, topics};
+use messages::topics::{self, TopicId};
+use messages::{Bus, CalibrationMsg, role};
 use mirror_proc::calibrate::Method;
 use mirror_proc::experiment::{PAPER_FIGURES, rotation_error};
 use mirror_proc::live::LiveReport;
@@ -373,9 +374,9 @@ fn run_placement(
     // Start the arm only once every consumer listens.
     let ready = Instant::now();
     loop {
-        let frames = bus.frame_subscriber_count(topics::FRAMES)?;
-        let dets = bus.subscriber_count::<StereoDetections>(topics::DETECTIONS)?;
-        let joints = bus.subscriber_count::<JointState>(topics::JOINT_STATE)?;
+        let frames = bus.subscriber_count(TopicId::Frames)?;
+        let dets = bus.subscriber_count(TopicId::Detections)?;
+        let joints = bus.subscriber_count(TopicId::JointState)?;
         let extra = usize::from(recorder.is_some());
         if frames > extra && dets > extra && joints >= 2 + extra {
             break;
@@ -406,8 +407,8 @@ fn run_placement(
     ];
     stages.push(Stage::spawn(&launch, "kinematics_proc", kin_args)?);
     // Progress from the stage outputs.
-    let samples = bus.subscriber::<MirrorSample>(topics::SAMPLES)?;
-    let calibrations = bus.subscriber::<CalibrationMsg>(topics::CALIBRATION)?;
+    let samples = bus.subscriber::<topics::Samples>()?;
+    let calibrations = bus.subscriber::<topics::Calibration>()?;
     let (mut paired, mut last_cal) = (0usize, None::<CalibrationMsg>);
     let terminal = std::io::stderr().is_terminal();
     let mut shown = String::new();

@@ -11,10 +11,11 @@ use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
 
+use bytemuck::bytes_of;
 use camera_proc::render::{Facing, Renderer, SimWorld};
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
 use messages::{FrameHeader, JointState, encoding};
-use recorder::channels::{Topic, bytes_of};
+use recorder::channels::TopicId;
 use recorder::view::ViewBuilder;
 use recorder::writer::{Compression, Entry, WriterOptions, start};
 
@@ -107,7 +108,7 @@ fn recorder_write(
         // A fresh copy per frame, as the IPC thread makes from shared memory.
         handle
             .send(Entry {
-                topic: Topic::Frames,
+                topic: TopicId::Frames,
                 log_time: i as u64 * 33_333_333,
                 publish_time: 0,
                 data: frame.clone(),
@@ -117,7 +118,7 @@ fn recorder_write(
             let seq = (3 * i + k) as u64;
             handle
                 .send(Entry {
-                    topic: Topic::JointState,
+                    topic: TopicId::JointState,
                     log_time: seq * 10_000_000,
                     publish_time: 0,
                     data: joint_state(seq),

@@ -27,6 +27,7 @@ pub mod replay;
 pub mod view;
 pub mod writer;
 
+use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::Duration;
 
@@ -80,22 +81,15 @@ pub fn record(
     )
     .map_err(anyhow::Error::msg)?;
     tracing::info!(prefix, path = %path.display(), "recording");
-    let mut failure = None;
-    bus.wake()?.run(
+    let captured = bus.wake()?.run(
         &capture.listeners(),
         Some(Duration::from_millis(250)),
-        || match capture.drain(&handle) {
-            Ok(_) => true,
-            Err(e) => {
-                failure = Some(e);
-                false
-            }
-        },
-    )?;
-    let summary = handle.finish();
-    match (summary, failure) {
-        (Ok(summary), None) => Ok(summary),
-        (Err(e), _) => Err(anyhow::anyhow!("recording stopped: {e}")),
-        (Ok(_), Some(e)) => Err(anyhow::anyhow!("recording stopped: {e}")),
+        || capture.drain(&handle).map(|_| ControlFlow::Continue(())),
+    );
+    // The writer's own error says more than the capture's "writer stopped".
+    match (handle.finish(), captured) {
+        (Ok(summary), Ok(())) => Ok(summary),
+        (Err(e), _) => Err(anyhow::Error::msg(e).context("recording stopped")),
+        (Ok(_), Err(e)) => Err(anyhow::Error::from(e).context("recording stopped")),
     }
 }

@@ -79,7 +79,7 @@ fn run(args: Args) -> Result<()> {
         "message stamp, CLOCK_MONOTONIC ns".into(),
     );
     metadata.push(("run".to_string(), run_meta));
-    let layouts = recorder::channels::Topic::ALL
+    let layouts = recorder::channels::TopicId::ALL
         .iter()
         .map(|t| {
             (

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use mcap::records::Record;
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
-use crate::channels::{Layout, MESSAGE_ENCODING, Message, Topic};
+use crate::channels::{Layout, MESSAGE_ENCODING, Message, TopicId};
 
 /// A recording that cannot be read at all.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -59,7 +59,7 @@ pub struct Damage {
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Contents {
     /// Lossless messages per topic.
-    pub counts: BTreeMap<Topic, u64>,
+    pub counts: BTreeMap<TopicId, u64>,
     /// Log time of the first and last lossless message, ns.
     pub time_range: Option<(u64, u64)>,
     /// Messages on other channels (viewing channels).
@@ -164,13 +164,13 @@ const RECORD_LIMIT: usize = 512 << 20;
 fn lossless_topic(
     channel: &mcap::records::Channel,
     schema: Option<&(String, Vec<u8>)>,
-) -> Result<Option<Topic>, String> {
+) -> Result<Option<TopicId>, String> {
     if channel.message_encoding != MESSAGE_ENCODING {
         return Ok(None);
     }
     // Names from the file, on one line whatever bytes they hold.
     let name = one_line(&channel.topic);
-    let Some(topic) = Topic::from_name(&channel.topic) else {
+    let Some(topic) = TopicId::from_name(&channel.topic) else {
         return Err(format!(
             "channel `{name}` is {MESSAGE_ENCODING} but not a topic this build knows"
         ));
@@ -218,7 +218,7 @@ impl Recording {
             .visit(
                 |log_time, message| {
                     *contents.counts.entry(message.topic()).or_default() += 1;
-                    if let Message::Frame(_, pixels) = message {
+                    if let Message::Frames(_, pixels) = message {
                         contents.largest_frame_bytes =
                             contents.largest_frame_bytes.max(pixels.len());
                     }
@@ -291,7 +291,7 @@ impl Recording {
         );
         let (mut read, mut other, mut undecodable) = (0u64, 0u64, 0u64);
         let mut schemas: BTreeMap<u16, (String, Vec<u8>)> = BTreeMap::new();
-        let mut channels: BTreeMap<u16, (Option<Topic>, String)> = BTreeMap::new();
+        let mut channels: BTreeMap<u16, (Option<TopicId>, String)> = BTreeMap::new();
         let mut damage = None;
         while let Some(event) = reader.next_event() {
             let event = match event {

@@ -9,12 +9,10 @@
 
 use std::time::{Duration, Instant};
 
-use messages::{
-    Bus, CalibrationMsg, JointState, LocatedObject, MirrorSample, Prediction, Publisher,
-    StereoDetections, topics,
-};
+use messages::topics::{FrameTopic, SmallTopic, TopicId, TopicVisitor};
+use messages::{Bus, BusError, FramePublisher, Publisher};
 
-use crate::channels::{Message, Topic};
+use crate::channels::Message;
 use crate::reader::Recording;
 
 /// How fast to replay.
@@ -80,25 +78,53 @@ impl ReplayStats {
     }
 }
 
-struct Publishers {
-    frames: Option<messages::FramePublisher>,
-    detections: Option<Publisher<StereoDetections>>,
-    joints: Option<Publisher<JointState>>,
-    samples: Option<Publisher<MirrorSample>>,
-    calibrations: Option<Publisher<CalibrationMsg>>,
-    predictions: Option<Publisher<Prediction>>,
-    located: Option<Publisher<LocatedObject>>,
+/// Publishes one topic's recorded messages.
+trait Republish {
+    fn publish(&self, message: &Message<'_>) -> Result<(), BusError>;
 }
 
-fn subscriber_count(bus: &Bus, topic: Topic) -> Result<usize, messages::BusError> {
-    match topic {
-        Topic::Frames => bus.frame_subscriber_count(topics::FRAMES),
-        Topic::Detections => bus.subscriber_count::<StereoDetections>(topic.name()),
-        Topic::JointState => bus.subscriber_count::<JointState>(topic.name()),
-        Topic::Samples => bus.subscriber_count::<MirrorSample>(topic.name()),
-        Topic::Calibration => bus.subscriber_count::<CalibrationMsg>(topic.name()),
-        Topic::Predictions => bus.subscriber_count::<Prediction>(topic.name()),
-        Topic::Located => bus.subscriber_count::<LocatedObject>(topic.name()),
+struct SmallRepublisher<T: SmallTopic>(Publisher<T>);
+
+impl<T: SmallTopic> Republish for SmallRepublisher<T> {
+    fn publish(&self, message: &Message<'_>) -> Result<(), BusError> {
+        // Replay asks each message's own topic's publisher.
+        let bytes = message.small_bytes().expect("a small message");
+        self.0.send(bytemuck::pod_read_unaligned(bytes))
+    }
+}
+
+impl Republish for FramePublisher {
+    fn publish(&self, message: &Message<'_>) -> Result<(), BusError> {
+        let Message::Frames(header, pixels) = *message else {
+            unreachable!("replay asks each message's own topic's publisher")
+        };
+        self.publish_as_recorded(header, |left, right| {
+            let (l, r) = pixels.split_at(left.len());
+            left.copy_from_slice(l);
+            right.copy_from_slice(r);
+            Ok::<_, std::convert::Infallible>(true)
+        })?
+        .unwrap_or(true);
+        Ok(())
+    }
+}
+
+/// Creates the publisher of one topic (frames sized for the recording).
+struct Advertise<'a> {
+    bus: &'a Bus,
+    largest_frame_bytes: usize,
+}
+
+impl TopicVisitor for Advertise<'_> {
+    type Output = Result<Box<dyn Republish>, BusError>;
+    fn small<T: SmallTopic>(self) -> Self::Output {
+        Ok(Box::new(SmallRepublisher(self.bus.publisher::<T>()?)))
+    }
+    fn frames<T: FrameTopic>(self) -> Self::Output {
+        Ok(Box::new(
+            self.bus
+                .frame_publisher::<T>(self.largest_frame_bytes.max(1))?,
+        ))
     }
 }
 
@@ -106,8 +132,9 @@ fn subscriber_count(bus: &Bus, topic: Topic) -> Result<usize, messages::BusError
 /// anything else.
 pub struct ReplayBus {
     bus: Bus,
-    topics: Vec<Topic>,
-    publishers: Publishers,
+    topics: Vec<TopicId>,
+    /// By [`TopicId::index`]; `None` for a topic not replayed.
+    publishers: Vec<Option<Box<dyn Republish>>>,
     _services: messages::OpenServices,
 }
 
@@ -117,7 +144,7 @@ impl ReplayBus {
     /// start: they inherit the setting, and with overflow off iceoryx2 0.10
     /// can lose the first samples to a subscriber that came before its
     /// publisher (seen here as frames 4 and 5 missing in 1 of 4 replays).
-    pub fn create(prefix: &str, recording: &Recording, topics: &[Topic]) -> anyhow::Result<Self> {
+    pub fn create(prefix: &str, recording: &Recording, topics: &[TopicId]) -> anyhow::Result<Self> {
         let bus = Bus::new(prefix, "replay")?.lossless();
         let services = bus.open_all().map_err(|e| {
             anyhow::anyhow!(
@@ -125,46 +152,25 @@ impl ReplayBus {
                  start; is a live pipeline using this prefix?)"
             )
         })?;
-        let publishers = Publishers::create(&bus, recording, topics)?;
+        let publishers = TopicId::ALL
+            .into_iter()
+            .map(|t| {
+                topics
+                    .contains(&t)
+                    .then(|| {
+                        t.visit(Advertise {
+                            bus: &bus,
+                            largest_frame_bytes: recording.contents().largest_frame_bytes,
+                        })
+                    })
+                    .transpose()
+            })
+            .collect::<Result<_, _>>()?;
         Ok(Self {
             bus,
             topics: topics.to_vec(),
             publishers,
             _services: services,
-        })
-    }
-}
-
-impl Publishers {
-    fn create(bus: &Bus, recording: &Recording, topics: &[Topic]) -> anyhow::Result<Self> {
-        let wants = |t: Topic| topics.contains(&t);
-        Ok(Self {
-            frames: if wants(Topic::Frames) {
-                Some(bus.frame_publisher(
-                    topics::FRAMES,
-                    recording.contents().largest_frame_bytes.max(1),
-                )?)
-            } else {
-                None
-            },
-            detections: wants(Topic::Detections)
-                .then(|| bus.publisher(topics::DETECTIONS))
-                .transpose()?,
-            joints: wants(Topic::JointState)
-                .then(|| bus.publisher(topics::JOINT_STATE))
-                .transpose()?,
-            samples: wants(Topic::Samples)
-                .then(|| bus.publisher(topics::SAMPLES))
-                .transpose()?,
-            calibrations: wants(Topic::Calibration)
-                .then(|| bus.publisher(topics::CALIBRATION))
-                .transpose()?,
-            predictions: wants(Topic::Predictions)
-                .then(|| bus.publisher(topics::PREDICTIONS))
-                .transpose()?,
-            located: wants(Topic::Located)
-                .then(|| bus.publisher(topics::LOCATED))
-                .transpose()?,
         })
     }
 }
@@ -179,11 +185,9 @@ pub fn replay(
 ) -> anyhow::Result<ReplayStats> {
     let bus = &replay_bus.bus;
     let topics = &replay_bus.topics;
-    let wants = |t: Topic| topics.contains(&t);
-    let p = &replay_bus.publishers;
     let waiting = Instant::now();
     for &t in topics {
-        while subscriber_count(bus, t)? < options.wait_subscribers {
+        while bus.subscriber_count(t)? < options.wait_subscribers {
             if stop() {
                 anyhow::bail!("interrupted while waiting for subscribers");
             }
@@ -191,7 +195,7 @@ pub fn replay(
                 anyhow::bail!(
                     "topic `{}` has {} subscribers after {:.0} s, waiting for {}",
                     t.name(),
-                    subscriber_count(bus, t)?,
+                    bus.subscriber_count(t)?,
                     options.wait_timeout.as_secs_f64(),
                     options.wait_subscribers
                 );
@@ -227,7 +231,10 @@ pub fn replay(
             if stop() {
                 return Ok(false);
             }
-            if log_time < start_at || !wants(message.topic()) {
+            let Some(publisher) = &replay_bus.publishers[message.topic().index()] else {
+                return Ok(true);
+            };
+            if log_time < start_at {
                 return Ok(true);
             }
             let origin = *replay_origin.get_or_insert(log_time);
@@ -243,7 +250,9 @@ pub fn replay(
                     std::thread::sleep(wait);
                 }
             }
-            publish(p, &message).map_err(|e| format!("{e:#}"))?;
+            publisher
+                .publish(&message)
+                .map_err(|e| format!("{:#}", anyhow::Error::from(e)))?;
             stats.published += 1;
             last_time = Some(log_time);
             bar.inc(1);
@@ -265,37 +274,4 @@ pub fn replay(
         )
     });
     Ok(stats)
-}
-
-fn publish(p: &Publishers, message: &Message<'_>) -> anyhow::Result<()> {
-    fn send<T: iceoryx2::prelude::ZeroCopySend + std::fmt::Debug + Copy + 'static>(
-        publisher: &Option<Publisher<T>>,
-        m: T,
-    ) -> anyhow::Result<()> {
-        if let Some(publisher) = publisher {
-            publisher.send(m)?;
-        }
-        Ok(())
-    }
-    match *message {
-        Message::Frame(header, pixels) => {
-            if let Some(frames) = &p.frames {
-                frames
-                    .publish_as_recorded(header, |left, right| {
-                        let (l, r) = pixels.split_at(left.len());
-                        left.copy_from_slice(l);
-                        right.copy_from_slice(r);
-                        Ok::<(), std::convert::Infallible>(())
-                    })?
-                    .unwrap_or(());
-            }
-            Ok(())
-        }
-        Message::Detections(m) => send(&p.detections, m),
-        Message::JointState(m) => send(&p.joints, m),
-        Message::Sample(m) => send(&p.samples, m),
-        Message::Calibration(m) => send(&p.calibrations, m),
-        Message::Prediction(m) => send(&p.predictions, m),
-        Message::Located(m) => send(&p.located, m),
-    }
 }

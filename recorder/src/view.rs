@@ -200,10 +200,9 @@ impl ViewBuilder {
     pub fn view(&mut self, message: &Message<'_>) -> Vec<ViewMessage> {
         let mut out = Vec::new();
         match message {
-            Message::Frame(header, pixels) if self.images => {
+            Message::Frames(header, pixels) if self.images => {
                 Self::images(header, pixels, &mut out);
             }
-            Message::Frame(..) => {}
             Message::Detections(d) => {
                 for k in 0..2 {
                     out.push(encode(
@@ -213,7 +212,7 @@ impl ViewBuilder {
                     ));
                 }
             }
-            Message::Prediction(p) => {
+            Message::Predictions(p) => {
                 for k in 0..2 {
                     let [x, y] = p.predicted_pixels[k];
                     let annotations = ImageAnnotations {
@@ -258,7 +257,8 @@ impl ViewBuilder {
                 self.arm(js, &mut out)
             }
             Message::Located(l) => out.push(encode(ViewTopic::Scene, l.stamp_ns, &located(l))),
-            Message::Sample(_) => {}
+            // Topics without a view (samples; frames when images are off).
+            _ => {}
         }
         out
     }

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, Sender, bounded};
 use mcap::records::MessageHeader;
 
-use crate::channels::{MESSAGE_ENCODING, Message, SCHEMA_ENCODING, Topic};
+use crate::channels::{MESSAGE_ENCODING, Message, SCHEMA_ENCODING, TopicId, schema_data};
 use crate::live_view::LiveView;
 use crate::view::{ViewBuilder, ViewMessage, ViewTopic};
 
@@ -79,7 +79,7 @@ impl Default for WriterOptions {
 #[derive(Debug)]
 pub struct Entry {
     /// Its topic.
-    pub topic: Topic,
+    pub topic: TopicId,
     /// Log time (the message stamp), ns.
     pub log_time: u64,
     /// When the recorder received it (CLOCK_MONOTONIC ns).
@@ -91,8 +91,8 @@ pub struct Entry {
 /// Counters shared between the IPC thread and the writer thread.
 #[derive(Debug, Default)]
 pub struct Counters {
-    /// Messages written per lossless topic, in [`Topic::ALL`] order.
-    pub written: [AtomicU64; 7],
+    /// Messages written per lossless topic, in [`TopicId::ALL`] order.
+    pub written: [AtomicU64; TopicId::COUNT],
     /// Frames dropped because the writer's queue was full.
     pub frames_dropped_queue_full: AtomicU64,
     /// Frames the recorder never received (gaps in the frame sequence:
@@ -155,7 +155,7 @@ impl RecorderHandle {
         if self.failed.load(Ordering::Relaxed) {
             return Err(WriterStopped);
         }
-        if entry.topic == Topic::Frames {
+        if entry.topic.carries_frames() {
             if self.drop_frames {
                 match self.frames.try_send(entry) {
                     Ok(()) => Ok(()),
@@ -185,7 +185,7 @@ impl RecorderHandle {
             .map_err(|_| "the writer thread panicked".to_string())??;
         let c = &self.counters;
         Ok(RecordingSummary {
-            messages: Topic::ALL
+            messages: TopicId::ALL
                 .iter()
                 .zip(&c.written)
                 .map(|(t, n)| (t.name().to_string(), n.load(Ordering::Relaxed)))
@@ -318,7 +318,7 @@ fn write_loop(
 /// The MCAP writer with every channel registered up front.
 struct Mcap {
     writer: mcap::Writer<BufWriter<File>>,
-    lossless: HashMap<Topic, (u16, u32)>,
+    lossless: HashMap<TopicId, (u16, u32)>,
     views: HashMap<ViewTopic, (u16, u32)>,
 }
 
@@ -331,9 +331,9 @@ impl Mcap {
             .library(format!("recorder {}", env!("CARGO_PKG_VERSION")))
             .create(out)?;
         let mut lossless = HashMap::new();
-        for t in Topic::ALL {
+        for t in TopicId::ALL {
             let schema =
-                writer.add_schema(&t.layout().type_name, SCHEMA_ENCODING, &t.schema_data())?;
+                writer.add_schema(&t.layout().type_name, SCHEMA_ENCODING, &schema_data(t))?;
             let id = writer.add_channel(schema, t.name(), MESSAGE_ENCODING, &BTreeMap::new())?;
             lossless.insert(t, (id, 0));
         }
@@ -400,11 +400,7 @@ impl Mcap {
                 &entry.data,
             )
             .map_err(|e| describe(&e))?;
-        let k = Topic::ALL
-            .iter()
-            .position(|t| *t == entry.topic)
-            .expect("listed");
-        counters.written[k].fetch_add(1, Ordering::Relaxed);
+        counters.written[entry.topic.index()].fetch_add(1, Ordering::Relaxed);
         counters
             .lossless_bytes
             .fetch_add(entry.data.len() as u64, Ordering::Relaxed);

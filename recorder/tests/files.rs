@@ -8,9 +8,10 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Duration;
 
+use bytemuck::bytes_of;
 use messages::{FrameHeader, JointState, StereoDetections, encoding};
 use proptest::prelude::*;
-use recorder::channels::{Topic, bytes_of, log_time};
+use recorder::channels::{TopicId, log_time};
 use recorder::reader::Recording;
 use recorder::view::ViewBuilder;
 use recorder::writer::{Compression, Entry, WriterOptions, start};
@@ -49,13 +50,13 @@ fn entries(n: u64) -> Vec<Entry> {
             let j = joint(seq);
             [
                 Entry {
-                    topic: Topic::Frames,
+                    topic: TopicId::Frames,
                     log_time: 1_000_000 * seq,
                     publish_time: 0,
                     data: f,
                 },
                 Entry {
-                    topic: Topic::JointState,
+                    topic: TopicId::JointState,
                     log_time: 1_000_000 * seq + 500,
                     publish_time: 0,
                     data: j,
@@ -80,14 +81,14 @@ fn write(path: &Path, n: u64, compression: Compression) {
     assert_eq!(summary.messages["joint_state"], n);
 }
 
-fn read_all(recording: &Recording) -> BTreeMap<Topic, Vec<Vec<u8>>> {
-    let mut out: BTreeMap<Topic, Vec<Vec<u8>>> = BTreeMap::new();
+fn read_all(recording: &Recording) -> BTreeMap<TopicId, Vec<Vec<u8>>> {
+    let mut out: BTreeMap<TopicId, Vec<Vec<u8>>> = BTreeMap::new();
     recording
         .for_each(|_, m| {
             assert!(
                 matches!(
                     m.topic(),
-                    Topic::Frames | Topic::JointState | Topic::Detections
+                    TopicId::Frames | TopicId::JointState | TopicId::Detections
                 ),
                 "unexpected {m:?}"
             );
@@ -106,12 +107,12 @@ fn every_compression_round_trips_the_bytes() {
         write(&path, 40, compression);
         let recording = Recording::open(&path).unwrap();
         assert_eq!(recording.contents().damage, None);
-        assert_eq!(recording.contents().counts[&Topic::Frames], 40);
+        assert_eq!(recording.contents().counts[&TopicId::Frames], 40);
         let read = read_all(&recording);
         let expected: Vec<Vec<u8>> = (0..40).map(frame).collect();
-        assert_eq!(read[&Topic::Frames], expected, "{compression:?}");
+        assert_eq!(read[&TopicId::Frames], expected, "{compression:?}");
         let expected: Vec<Vec<u8>> = (0..40).map(joint).collect();
-        assert_eq!(read[&Topic::JointState], expected, "{compression:?}");
+        assert_eq!(read[&TopicId::JointState], expected, "{compression:?}");
     }
 }
 
@@ -135,9 +136,12 @@ fn a_file_being_written_is_readable_up_to_its_last_timed_flush() {
     let recording = Recording::open(&copy).unwrap();
     assert!(recording.contents().damage.is_some(), "no footer yet");
     let read = read_all(&recording);
-    assert_eq!(read[&Topic::Frames], (0..10).map(frame).collect::<Vec<_>>());
     assert_eq!(
-        read[&Topic::JointState],
+        read[&TopicId::Frames],
+        (0..10).map(frame).collect::<Vec<_>>()
+    );
+    assert_eq!(
+        read[&TopicId::JointState],
         (0..10).map(joint).collect::<Vec<_>>()
     );
     handle.finish().unwrap();
@@ -157,7 +161,7 @@ fn truncated_and_corrupted_files_never_panic_and_keep_what_is_intact() {
         std::fs::write(&damaged, &whole[..cut]).unwrap();
         match Recording::open(&damaged) {
             Ok(r) => {
-                let frames = read_all(&r).remove(&Topic::Frames).unwrap_or_default();
+                let frames = read_all(&r).remove(&TopicId::Frames).unwrap_or_default();
                 assert!(frames.len() <= 30);
                 assert_eq!(frames, expected[..frames.len()], "cut at {cut}");
             }
@@ -282,7 +286,7 @@ fn foreign_files_and_unknown_layouts_are_refused_by_name() {
         std::fs::File::create(&path).unwrap(),
     ))
     .unwrap();
-    let mut layout = Topic::Detections.layout();
+    let mut layout = TopicId::Detections.layout();
     layout.type_name = "mirror.StereoDetections.v3".into();
     layout.size += 8;
     let schema = w

@@ -19,6 +19,10 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod step;
+
+pub use step::{Tracked, Tracker};
+
 use anyhow::{Context, Result};
 use messages::Marker;
 use opencv::aruco;

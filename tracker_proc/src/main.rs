@@ -1,15 +1,15 @@
 //! `tracker_proc`: finds ArUco markers, normal and mirror-reversed, in
 //! stereo frames (`run`) or in image files (`detect`).
 
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
-use messages::{Bus, CameraMarkers, StereoDetections, now_ns, topics};
-use opencv::core::Mat;
+use messages::{Bus, now_ns, topics};
 use opencv::prelude::*;
-use tracker_proc::Detector;
+use tracker_proc::{Detector, Tracked, Tracker};
 
 /// Track ArUco markers, including markers seen in a mirror.
 #[derive(Debug, Parser)]
@@ -66,98 +66,39 @@ fn detect_files(images: &[PathBuf]) -> Result<()> {
 }
 
 fn run(prefix: &str, mirrored: bool) -> Result<()> {
-    let mut detector = Detector::new(mirrored)?;
+    let mut tracker = Tracker::new(mirrored)?;
     let bus = Bus::new(prefix, "tracker_proc")?;
-    let frames = bus.frame_subscriber(topics::FRAMES)?;
-    let publisher = bus.publisher::<StereoDetections>(topics::DETECTIONS)?;
-    let mut count = 0u64;
-    let mut rejections = messages::Rejections::default();
-    let mut order = messages::StampOrder::default();
-    let mut last_seq: Option<u64> = None;
+    let frames = bus.frame_subscriber::<topics::Frames>()?;
+    let publisher = bus.publisher::<topics::Detections>()?;
     let mut stats = messages::stats::StageStats::new("tracker_proc");
-    stats.count("frames_missed", 0);
-    let mut failure = None;
+    let mut count = 0u64;
     tracing::info!(mirrored, "tracking");
-    bus.wake()?.run(&[frames.listener()], None, || {
-        loop {
-            let received_ns = now_ns();
-            let step = frames.receive_with(|header, payload| -> Result<Option<StereoDetections>> {
-                let _span = tracing::trace_span!("tracker_step", seq = header.seq).entered();
-                if let Err(why) = header.validate(payload.len()) {
-                    rejections.reject("frame", header.seq, &why);
-                    return Ok(None);
-                }
-                if let Err(why) = order.check(header.stamp_ns) {
-                    rejections.reject("frame", header.seq, &why);
-                    return Ok(None);
-                }
-                // Frames overwritten in shared memory before we took them
-                // (counted among the frames we could use).
-                if let Some(last) = last_seq
-                    && header.seq > last + 1
-                {
-                    stats.count("frames_missed", header.seq - last - 1);
-                }
-                last_seq = Some(header.seq);
-                let channels = header.bytes_per_pixel().unwrap_or(1) as i32;
-                let mut out = StereoDetections {
-                    seq: header.seq,
-                    stamp_ns: header.stamp_ns,
-                    frame_published_ns: header.published_ns,
-                    ..Default::default()
+    bus.wake()?
+        .run(&[frames.listener()], None, || -> Result<_> {
+            loop {
+                let received_ns = now_ns();
+                let Some(tracked) = frames.receive_with(|h, payload| tracker.step(h, payload))?
+                else {
+                    return Ok(ControlFlow::Continue(()));
                 };
-                for (k, image) in payload.chunks_exact(header.image_len()).enumerate().take(2) {
-                    // A Mat header over the shared-memory image: no copy.
-                    let flat = Mat::new_rows_cols_with_data(
-                        header.height as i32,
-                        header.stride as i32,
-                        image,
-                    )?;
-                    let view = flat.reshape(channels, header.height as i32)?;
-                    let roi = Mat::roi(
-                        &view,
-                        opencv::core::Rect::new(0, 0, header.width as i32, header.height as i32),
-                    )?;
-                    let mut markers = CameraMarkers::default();
-                    for m in detector.detect(&roi)? {
-                        markers.push(m);
-                    }
-                    out.cameras[k] = markers;
-                }
-                Ok(Some(out))
-            });
-            match step {
-                Ok(Some(Ok(Some(det)))) => {
-                    if let Err(e) = publisher.send(det) {
-                        failure = Some(e.into());
-                        return false;
-                    }
+                if let Tracked::Detections(det) = tracked? {
+                    publisher.send(det)?;
                     let now = now_ns();
                     stats.record("receive_to_publish", now - received_ns);
                     stats.record("capture_to_publish", now - det.stamp_ns);
                     count += 1;
                 }
-                Ok(Some(Ok(None))) => {}
-                Ok(Some(Err(e))) => {
-                    failure = Some(e);
-                    return false;
-                }
-                Ok(None) => return true,
-                Err(e) => {
-                    failure = Some(e.into());
-                    return false;
-                }
             }
-        }
-    })?;
-    stats.count("rejected", rejections.count());
+        })?;
+    stats.count("frames_missed", tracker.frames_missed());
+    stats.count("rejected", tracker.rejected());
     stats.finish();
     tracing::info!(
         frames = count,
-        rejected = rejections.count(),
+        rejected = tracker.rejected(),
         "tracker stopped"
     );
-    failure.map_or(Ok(()), Err)
+    Ok(())
 }
 
 fn main() -> ExitCode {

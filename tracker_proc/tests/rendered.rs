@@ -167,3 +167,69 @@ fn the_stock_dictionary_misses_reversed_markers_ours_flags_them() {
     assert_eq!(ours_flagged + ambiguous, 50);
     assert!(!ours.mirror_ambiguous_ids().contains(&ARM_MARKER_ID));
 }
+
+/// The stage's whole per-frame step, on a rendered stereo frame laid out as
+/// in shared memory (left image then right, with a padded stride): it finds
+/// what `Detector` finds on each image, and refuses and counts malformed
+/// and out-of-order frames.
+#[test]
+fn the_tracker_step_reads_frames_in_place_and_counts_what_it_refuses() {
+    use messages::{FrameHeader, encoding};
+    use tracker_proc::{Tracked, Tracker};
+    let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
+    let q = [0.8, 0.1, 0.2, -0.4];
+    let ([l, r], _) = renderer.render_pair(&q, Facing::Mirror, 0).unwrap();
+    let (width, height, stride) = (640usize, 480usize, 656usize);
+    let mut payload = vec![0u8; 2 * height * stride];
+    for (k, image) in [&l, &r].into_iter().enumerate() {
+        for row in 0..height {
+            let at = k * height * stride + row * stride;
+            payload[at..at + width].copy_from_slice(&image[row * width..(row + 1) * width]);
+        }
+    }
+    let header = |seq: u64, stamp_ns: i64| FrameHeader {
+        seq,
+        stamp_ns,
+        published_ns: stamp_ns + 1,
+        width: width as u32,
+        height: height as u32,
+        stride: stride as u32,
+        encoding: encoding::MONO8,
+    };
+    let mut detector = Detector::new(true).unwrap();
+    let expected: Vec<_> = [&l, &r]
+        .map(|image| {
+            let flat = Mat::from_slice(image).unwrap();
+            detector.detect(&flat.reshape(1, 480).unwrap()).unwrap()
+        })
+        .into_iter()
+        .collect();
+    assert!(!expected[0].is_empty() && !expected[1].is_empty());
+
+    let mut tracker = Tracker::new(true).unwrap();
+    let Tracked::Detections(d) = tracker.step(&header(0, 100), &payload).unwrap() else {
+        panic!("a good frame is tracked");
+    };
+    assert_eq!((d.seq, d.stamp_ns, d.frame_published_ns), (0, 100, 101));
+    for k in 0..2 {
+        let found: Vec<_> = d.cameras[k].iter().copied().collect();
+        assert_eq!(found, expected[k], "camera {k}");
+    }
+    // A payload that does not match its header, and a stamp from the past.
+    assert!(matches!(
+        tracker.step(&header(1, 200), &payload[1..]).unwrap(),
+        Tracked::Rejected(why) if why.contains("payload")
+    ));
+    assert!(matches!(
+        tracker.step(&header(2, 50), &payload).unwrap(),
+        Tracked::Rejected(why) if why.contains("stamp")
+    ));
+    assert_eq!(tracker.rejected(), 2);
+    // The sequence gap counts every frame since the last one tracked: 1 and 2
+    // (refused) and 3 and 4 (never came).
+    assert!(matches!(
+        tracker.step(&header(5, 300), &payload).unwrap(),
+        Tracked::Detections(_)
+    ));
+    assert_eq!(tracker.frames_missed(), 4);
+}

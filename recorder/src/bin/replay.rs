@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use anyhow::{Result, bail};
 use clap::Parser;
-use recorder::channels::Topic;
+use recorder::channels::TopicId;
 use recorder::reader::Recording;
 use recorder::replay::{Pace, ReplayBus, ReplayOptions, replay};
 
@@ -50,24 +50,24 @@ struct Args {
     json: bool,
 }
 
-fn topics_of(args: &Args) -> Result<Vec<Topic>> {
+fn topics_of(args: &Args) -> Result<Vec<TopicId>> {
     if let Some(names) = &args.topics {
         return names
             .iter()
             .map(|n| {
-                Topic::from_name(n).ok_or_else(|| {
+                TopicId::from_name(n).ok_or_else(|| {
                     anyhow::anyhow!(
                         "--topics: unknown topic `{n}` (known: {})",
-                        Topic::ALL.map(|t| t.name()).join(", ")
+                        TopicId::ALL.map(|t| t.name()).join(", ")
                     )
                 })
             })
             .collect();
     }
     Ok(match args.kind.as_str() {
-        "frames" => vec![Topic::Frames, Topic::JointState],
-        "detections" => vec![Topic::Detections, Topic::JointState],
-        "all" => Topic::ALL.to_vec(),
+        "frames" => vec![TopicId::Frames, TopicId::JointState],
+        "detections" => vec![TopicId::Detections, TopicId::JointState],
+        "all" => TopicId::ALL.to_vec(),
         other => bail!("--kind: `{other}` is not frames, detections or all"),
     })
 }

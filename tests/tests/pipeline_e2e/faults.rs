@@ -267,10 +267,8 @@ const BURSTS: u64 = 4;
 /// joint states and detections through the `Bus`.
 fn rogue(prefix: &str) {
     let bus = Bus::new(prefix, "rogue").unwrap();
-    let joints = bus.publisher::<JointState>(topics::JOINT_STATE).unwrap();
-    let detections = bus
-        .publisher::<StereoDetections>(topics::DETECTIONS)
-        .unwrap();
+    let joints = bus.publisher::<topics::JointState>().unwrap();
+    let detections = bus.publisher::<topics::Detections>().unwrap();
     let node = NodeBuilder::new().create::<ipc::Service>().unwrap();
     let name = |s: String| ServiceName::new(&s).unwrap();
     let frames = node
@@ -496,7 +494,7 @@ fn shared_memory_is_private_and_a_crash_leaves_nothing_behind() {
     );
     let wait_attached = || {
         let started = Instant::now();
-        while bus.frame_subscriber_count(topics::FRAMES).unwrap() < 1 {
+        while bus.subscriber_count(topics::TopicId::Frames).unwrap() < 1 {
             assert!(
                 started.elapsed() < Duration::from_secs(30),
                 "tracker never attached"
@@ -585,7 +583,7 @@ fn shared_memory_is_private_and_a_crash_leaves_nothing_behind() {
     );
     // Its subscriber port is gone from the service too: only the new one counts.
     wait_attached();
-    assert_eq!(bus.frame_subscriber_count(topics::FRAMES).unwrap(), 1);
+    assert_eq!(bus.subscriber_count(topics::TopicId::Frames).unwrap(), 1);
 }
 
 fn files_under(dir: &Path) -> Vec<PathBuf> {

@@ -6,16 +6,16 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use recorder::channels::Topic;
+use recorder::channels::TopicId;
 use recorder::reader::Recording;
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 
 use super::{live_run, wait_for_line};
 
 /// Every lossless message of a recording, per topic, as bytes.
-fn lossless(path: &Path) -> BTreeMap<Topic, Vec<Vec<u8>>> {
+fn lossless(path: &Path) -> BTreeMap<TopicId, Vec<Vec<u8>>> {
     let recording = Recording::open(path).unwrap();
-    let mut out: BTreeMap<Topic, Vec<Vec<u8>>> = BTreeMap::new();
+    let mut out: BTreeMap<TopicId, Vec<Vec<u8>>> = BTreeMap::new();
     recording
         .for_each(|_, m| {
             out.entry(m.topic()).or_default().push(m.to_bytes());
@@ -167,7 +167,11 @@ fn replay_into(kind: &str, dir: &Path) -> PathBuf {
     b
 }
 
-fn assert_same(a: &BTreeMap<Topic, Vec<Vec<u8>>>, b: &BTreeMap<Topic, Vec<Vec<u8>>>, topic: Topic) {
+fn assert_same(
+    a: &BTreeMap<TopicId, Vec<Vec<u8>>>,
+    b: &BTreeMap<TopicId, Vec<Vec<u8>>>,
+    topic: TopicId,
+) {
     let (x, y) = (&a[&topic], &b[&topic]);
     assert!(
         !x.is_empty(),
@@ -222,7 +226,7 @@ fn record_a_equals_replay_of_its_frames_through_tracker_and_mirror_stage() {
     let a_path = recording_a();
     let b_path = replay_into("frames", dir.path());
     let (a, b) = (lossless(&a_path), lossless(&b_path));
-    for topic in Topic::ALL {
+    for topic in TopicId::ALL {
         assert_same(&a, &b, topic);
     }
     // The viewing channels too: images, overlays, transforms, scene.
@@ -235,8 +239,8 @@ fn record_a_equals_replay_of_its_detections_through_the_mirror_stage() {
     let a_path = recording_a();
     let b_path = replay_into("detections", dir.path());
     let (a, b) = (lossless(&a_path), lossless(&b_path));
-    assert!(!b.contains_key(&Topic::Frames));
-    for topic in Topic::ALL.into_iter().filter(|t| *t != Topic::Frames) {
+    assert!(!b.contains_key(&TopicId::Frames));
+    for topic in TopicId::ALL.into_iter().filter(|t| *t != TopicId::Frames) {
         assert_same(&a, &b, topic);
     }
     let images = ["frames", "/camera/left/image", "/camera/right/image"];
@@ -356,7 +360,7 @@ fn a_recorder_killed_mid_run_leaves_every_message_up_to_its_last_flush() {
     // A third of the file was on disk, flushed chunk by chunk.
     assert!(covered > 1.0, "only {covered:.2} s readable after the kill");
     let b = lossless(&killed);
-    for topic in Topic::ALL {
+    for topic in TopicId::ALL {
         let got = b.get(&topic).map_or(&[][..], |v| &v[..]);
         let all = &a[&topic];
         // Nothing lost before the last flush: each topic is a prefix of what was published.
@@ -369,8 +373,8 @@ fn a_recorder_killed_mid_run_leaves_every_message_up_to_its_last_flush() {
     }
     eprintln!(
         "killed mid-run: {covered:.2} s of messages readable, {} frames, {} joint states",
-        b.get(&Topic::Frames).map_or(0, Vec::len),
-        b.get(&Topic::JointState).map_or(0, Vec::len)
+        b.get(&TopicId::Frames).map_or(0, Vec::len),
+        b.get(&TopicId::JointState).map_or(0, Vec::len)
     );
 }
 
@@ -525,7 +529,7 @@ fn a_full_disk_stops_the_recorder_with_one_line_and_a_readable_file_while_stages
     assert!(report["calibration"].is_object(), "{report}");
     // What was written before the disk filled is there, intact, in order.
     let b = lossless(&out);
-    let frames = b.get(&Topic::Frames).map_or(0, Vec::len);
+    let frames = b.get(&TopicId::Frames).map_or(0, Vec::len);
     assert!(frames > 0, "nothing readable: {log}");
     for (topic, got) in &b {
         assert!(
@@ -536,6 +540,6 @@ fn a_full_disk_stops_the_recorder_with_one_line_and_a_readable_file_while_stages
     }
     eprintln!(
         "disk full after {frames} of {} frames: {last}",
-        a[&Topic::Frames].len()
+        a[&TopicId::Frames].len()
     );
 }

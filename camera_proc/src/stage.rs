@@ -1,0 +1,128 @@
+//! The camera stage's loops: frames rendered or decoded straight into
+//! loaned shared memory and published, on the [`FrameClock`]'s schedule.
+
+use std::ops::ControlFlow;
+use std::time::Duration;
+
+use anyhow::{Result, bail};
+use messages::{Bus, FrameHeader, JointState, encoding, now_ns, phase, topics};
+
+use crate::clock::FrameClock;
+use crate::render::{Facing, Renderer, SimWorld};
+use crate::source::StereoSource;
+
+fn header(seq: u64, width: u32, height: u32) -> FrameHeader {
+    FrameHeader {
+        seq,
+        stamp_ns: now_ns(),
+        published_ns: 0,
+        width,
+        height,
+        stride: width,
+        encoding: encoding::MONO8,
+    }
+}
+
+/// Direct test poses turn the card to the head; all others to the mirror.
+fn facing(role: u32) -> Facing {
+    if role == messages::role::DIRECT {
+        Facing::Head
+    } else {
+        Facing::Mirror
+    }
+}
+
+/// The simulated head: renders what it sees, following the arm's joint
+/// states, at `fps`, until `tail_frames` after the pose plan is done.
+pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()> {
+    if !(fps > 0.0 && fps <= 1000.0) {
+        bail!("--fps must be in (0, 1000]");
+    }
+    let world = SimWorld::nico(mirror)?;
+    let intr = world.rig.cameras[0].intrinsics;
+    let dof = world.rig.arm.as_ref().map_or(0, |a| a.dof());
+    let mut renderer = Renderer::new(world)?;
+    let bus = Bus::new(prefix, "camera_proc")?;
+    let frames = bus.frame_publisher::<topics::Frames>(2 * (intr.width * intr.height) as usize)?;
+    let joints = bus.subscriber::<topics::JointState>()?;
+    let mut latest: Option<JointState> = None;
+    let mut rejections = messages::Rejections::default();
+    let mut order = messages::StampOrder::default();
+    let (mut seq, mut after_done) = (0u64, 0u32);
+    let mut clock = FrameClock::new(fps);
+    let mut last_published = None::<i64>;
+    let mut stats = messages::stats::StageStats::new("camera_proc");
+    tracing::info!(mirror, fps, "rendering the simulated head");
+    // A fine tick keeps frames within a millisecond of their schedule.
+    let tick = Duration::from_nanos(clock.period_ns() as u64).min(Duration::from_millis(1));
+    bus.wake()?
+        .run(&[joints.listener()], Some(tick), || -> Result<_> {
+            while let Some(s) = joints.receive()? {
+                // A bad joint state would render nonsense or fail the render:
+                // dropped, and the last good pose kept.
+                match s.fault(dof).map_or_else(|| order.check(s.stamp_ns), Err) {
+                    Err(why) => rejections.reject("joint state", s.seq, &why),
+                    Ok(()) => latest = Some(s),
+                }
+            }
+            // Render on the frame clock only; joint-state wake-ups just update the pose.
+            let Some(state) = latest else {
+                return Ok(ControlFlow::Continue(()));
+            };
+            if !clock.due(now_ns()) {
+                return Ok(ControlFlow::Continue(()));
+            }
+            let h = header(seq, intr.width, intr.height);
+            let _span = tracing::trace_span!("camera_step", seq).entered();
+            frames.publish(h, |left, right| {
+                renderer
+                    .render(state.joints(), facing(state.role), seq, left, right)
+                    .map(|_| true)
+            })??;
+            // The simulated capture: the frame's stamp to its publication (rendering).
+            let published = now_ns();
+            stats.record("capture_to_publish", published - h.stamp_ns);
+            if let Some(last) = last_published {
+                stats.record("frame_interval", published - last);
+            }
+            last_published = Some(published);
+            seq += 1;
+            if state.phase == phase::DONE {
+                after_done += 1;
+            }
+            Ok(if after_done <= tail_frames {
+                ControlFlow::Continue(())
+            } else {
+                ControlFlow::Break(())
+            })
+        })?;
+    stats.count("frames", seq);
+    stats.count("frames_late", clock.late());
+    stats.count("joint_states_rejected", rejections.count());
+    stats.finish();
+    tracing::info!(frames = seq, "camera done");
+    Ok(())
+}
+
+/// Real footage: publishes `source`'s pairs at `fps`, or as fast as a
+/// device delivers them, until it ends.
+pub fn run_source(prefix: &str, mut source: impl StereoSource, fps: Option<f64>) -> Result<()> {
+    let (w, h) = source.size();
+    let bus = Bus::new(prefix, "camera_proc")?;
+    let frames = bus.frame_publisher::<topics::Frames>(2 * (w * h) as usize)?;
+    let mut seq = 0u64;
+    let tick = fps
+        .map(|f| Duration::from_secs_f64(1.0 / f))
+        .unwrap_or(Duration::from_millis(1));
+    bus.wake()?.run(&[], Some(tick), || -> Result<_> {
+        let more = frames.publish(header(seq, w, h), |left, right| {
+            source.next_into(left, right)
+        })??;
+        seq += 1;
+        Ok(if more {
+            ControlFlow::Continue(())
+        } else {
+            ControlFlow::Break(())
+        })
+    })
+}

@@ -1,0 +1,99 @@
+//! The tracker's per-frame step: a frame header and its pixels in shared
+//! memory in, detections or a counted rejection out. The stage's loop only
+//! moves frames and detections between the bus and this step.
+
+use anyhow::Result;
+use messages::{CameraMarkers, FrameHeader, Rejections, StampOrder, StereoDetections};
+use opencv::core::{Mat, Rect};
+use opencv::prelude::*;
+
+use crate::Detector;
+
+/// What one frame gave.
+// One per frame, handed straight on: boxing the detections would allocate per frame.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum Tracked {
+    /// The markers found in both images.
+    Detections(StereoDetections),
+    /// The frame was dropped (malformed, or stamped out of order), and why;
+    /// it is counted in [`Tracker::rejected`] and logged at a limited rate.
+    Rejected(String),
+}
+
+/// The tracker stage's state: the detector, the stream's stamp order and
+/// sequence, and its counters.
+pub struct Tracker {
+    detector: Detector,
+    order: StampOrder,
+    rejections: Rejections,
+    last_seq: Option<u64>,
+    frames_missed: u64,
+}
+
+impl Tracker {
+    /// A tracker; with `mirrored`, it also finds mirror-reversed markers.
+    pub fn new(mirrored: bool) -> Result<Self> {
+        Ok(Self {
+            detector: Detector::new(mirrored)?,
+            order: StampOrder::default(),
+            rejections: Rejections::default(),
+            last_seq: None,
+            frames_missed: 0,
+        })
+    }
+
+    /// Tracks one stereo frame: checks the header against the payload and
+    /// the stamp order, counts frames missed before it, and finds the
+    /// markers of both images, read in place through `Mat` headers.
+    pub fn step(&mut self, header: &FrameHeader, payload: &[u8]) -> Result<Tracked> {
+        let _span = tracing::trace_span!("tracker_step", seq = header.seq).entered();
+        if let Err(why) = header
+            .validate(payload.len())
+            .and_then(|()| self.order.check(header.stamp_ns))
+        {
+            self.rejections.reject("frame", header.seq, &why);
+            return Ok(Tracked::Rejected(why));
+        }
+        // Frames overwritten in shared memory before we took them.
+        if let Some(last) = self.last_seq
+            && header.seq > last + 1
+        {
+            self.frames_missed += header.seq - last - 1;
+        }
+        self.last_seq = Some(header.seq);
+        let channels = header.bytes_per_pixel().unwrap_or(1) as i32;
+        let mut out = StereoDetections {
+            seq: header.seq,
+            stamp_ns: header.stamp_ns,
+            frame_published_ns: header.published_ns,
+            ..Default::default()
+        };
+        for (k, image) in payload.chunks_exact(header.image_len()).enumerate().take(2) {
+            // A Mat header over the shared-memory image: no copy.
+            let flat =
+                Mat::new_rows_cols_with_data(header.height as i32, header.stride as i32, image)?;
+            let view = flat.reshape(channels, header.height as i32)?;
+            let roi = Mat::roi(
+                &view,
+                Rect::new(0, 0, header.width as i32, header.height as i32),
+            )?;
+            let mut markers = CameraMarkers::default();
+            for m in self.detector.detect(&roi)? {
+                markers.push(m);
+            }
+            out.cameras[k] = markers;
+        }
+        Ok(Tracked::Detections(out))
+    }
+
+    /// Frames dropped as malformed or out of order.
+    pub fn rejected(&self) -> u64 {
+        self.rejections.count()
+    }
+
+    /// Frames never received (gaps in the sequence).
+    pub fn frames_missed(&self) -> u64 {
+        self.frames_missed
+    }
+}
