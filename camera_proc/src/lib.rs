@@ -3,7 +3,8 @@
 //! ([`clock`]) and the loops that publish frames ([`stage`]).
 //!
 //! ```no_run
-//! use camera_proc::render::{Facing, Renderer, SimWorld};
+//! use camera_proc::render::Renderer;
+//! use geometry::sim::{Facing, SimWorld};
 //! let world = SimWorld::nico(0)?;
 //! let mut renderer = Renderer::new(world)?;
 //! let (mut left, mut right) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);

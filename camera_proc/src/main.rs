@@ -4,10 +4,10 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use camera_proc::render::Facing;
 use camera_proc::source::{Captures, ImagePairs};
 use camera_proc::stage;
 use clap::{Parser, Subcommand};
+use geometry::sim::Facing;
 
 /// Publish synchronized stereo frames.
 #[derive(Debug, Parser)]

@@ -12,133 +12,17 @@
 //! followed by a Gaussian blur and sensor noise.
 
 use anyhow::{Context, Result, bail};
-use geometry::sim::{Mirror, nico_noise, nico_scene};
-use geometry::{Camera, Rig};
+use geometry::Camera;
+use geometry::sim::{Facing, ImageNoise, MARKER_MARGIN_MM, MARKER_SIZE_MM, SeenCard, SimWorld};
 use nalgebra::{Vector2, Vector3};
 use opencv::core::{self, Mat, Point2f, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{aruco, imgproc};
 
-/// Marker side (the black square), mm.
-pub const MARKER_SIZE_MM: f64 = 60.0;
-/// White margin around it, mm.
-pub const MARKER_MARGIN_MM: f64 = 15.0;
 /// Texture pixels per marker module side.
 const TEXTURE_MARKER_PX: i32 = 120;
 /// Grey level of the background.
 const BACKGROUND: f64 = 110.0;
-
-/// A marked object fixed in the world (not on the arm).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FixedMarker {
-    /// ArUco id (`DICT_4X4_50`).
-    pub id: u32,
-    /// Centre in the world, mm.
-    pub center: Vector3<f64>,
-}
-
-/// Image degradation.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImageNoise {
-    /// Gaussian blur sigma, px (0 = none).
-    pub blur_sigma: f64,
-    /// Additive sensor noise, grey levels (0 = none).
-    pub noise_sigma: f64,
-}
-
-/// Everything the renderer knows: the true world, not the robot's model.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SimWorld {
-    /// The head's cameras (exact) and arm model (nominal).
-    pub rig: Rig,
-    /// The mirror, if one is placed.
-    pub mirror: Option<Mirror>,
-    /// True encoder offsets: true angle = reading + offset.
-    pub true_offsets: Vec<f64>,
-    /// ArUco id of the arm's marker.
-    pub arm_marker: u32,
-    /// Other marked objects.
-    pub fixed: Vec<FixedMarker>,
-    /// Image degradation.
-    pub noise: ImageNoise,
-}
-
-/// Id of the arm's marker in the simulated worlds.
-pub const ARM_MARKER_ID: u32 = 0;
-/// Id of the object placed where only the mirror shows it.
-pub const HIDDEN_OBJECT_ID: u32 = 7;
-
-impl SimWorld {
-    /// The Nico scene in front of mirror `mirror`, with the preset's encoder
-    /// offsets, and a marked object beside and behind the head that the
-    /// cameras can only see in the mirror.
-    pub fn nico(mirror: usize) -> Result<Self> {
-        let scene = nico_scene();
-        let glass = *scene.mirrors.get(mirror).with_context(|| {
-            format!(
-                "mirror placement {mirror} does not exist (0..={})",
-                scene.mirrors.len() - 1
-            )
-        })?;
-        let fixed = hidden_object_spot(&scene.rig, &glass)
-            .map(|center| FixedMarker {
-                id: HIDDEN_OBJECT_ID,
-                center,
-            })
-            .into_iter()
-            .collect();
-        Ok(Self {
-            rig: scene.rig,
-            mirror: Some(glass),
-            true_offsets: nico_noise().joint_offsets,
-            arm_marker: ARM_MARKER_ID,
-            fixed,
-            noise: ImageNoise {
-                blur_sigma: 0.6,
-                noise_sigma: 2.0,
-            },
-        })
-    }
-}
-
-/// Which way the arm's card is turned.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Facing {
-    /// Towards the head's mirror image, to be read in the mirror.
-    Mirror,
-    /// Towards the head, to be read directly.
-    Head,
-}
-
-/// A spot behind the head (never in direct view) whose card reflection both
-/// cameras see whole through the glass: the first of a fixed grid, nearest
-/// the head first.
-fn hidden_object_spot(rig: &Rig, mirror: &Mirror) -> Option<Vector3<f64>> {
-    let mut candidates = Vec::new();
-    for z in [-60.0, -100.0, -140.0] {
-        for y in (-4..=8).map(|i| f64::from(i) * 25.0) {
-            for x in (-8..=8).map(|i| f64::from(i) * 25.0) {
-                candidates.push(Vector3::new(x, y, z));
-            }
-        }
-    }
-    candidates.sort_by(|a, b| a.norm().total_cmp(&b.norm()));
-    let side = MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM;
-    let head = 0.5 * (rig.cameras[0].center + rig.cameras[1].center);
-    candidates.into_iter().find(|c| {
-        let corners = card_corners(c, &mirror.plane.reflect_point(&head), side)
-            .map(|p| mirror.plane.reflect_point(&p));
-        rig.cameras.iter().all(|cam| {
-            corners.iter().all(|v| {
-                mirror.ray_hits_glass(&cam.center, v)
-                    && cam.depth(v) > 0.0
-                    && cam
-                        .project(v)
-                        .is_ok_and(|px| cam.intrinsics.contains(&px, 20.0))
-            })
-        })
-    })
-}
 
 /// A marker as drawn: id, mirror-reversed, and its code square's corners
 /// (distorted px, TL, TR, BR, BL as printed).
@@ -160,24 +44,6 @@ pub struct Renderer {
     /// Per camera: for each distorted pixel, the ideal pixel to sample.
     maps: [(Mat, Mat); 2],
     canvas: Mat,
-}
-
-/// Card corners (TL, TR, BR, BL as the viewer at `eye` sees them) of a card
-/// of side `side` centred at `center` and facing `eye`.
-fn card_corners(center: &Vector3<f64>, eye: &Vector3<f64>, side: f64) -> [Vector3<f64>; 4] {
-    let n = (eye - center).normalize();
-    let world_up = Vector3::new(0.0, -1.0, 0.0);
-    let up = (world_up - n * world_up.dot(&n))
-        .try_normalize(1e-9)
-        .unwrap_or_else(Vector3::x);
-    let right = up.cross(&n);
-    let h = side / 2.0;
-    [
-        center - right * h + up * h,
-        center + right * h + up * h,
-        center + right * h - up * h,
-        center - right * h - up * h,
-    ]
 }
 
 impl Renderer {
@@ -272,7 +138,7 @@ impl Renderer {
         things.extend(self.world.fixed.iter().map(|f| (f.id, f.center)));
         // Where each card is seen (camera independent): the whole card, and its code square for the truth.
         let side = MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM;
-        let mut cards: Vec<(u32, Seen, Seen)> = things
+        let mut cards: Vec<(u32, SeenCard, SeenCard)> = things
             .iter()
             .map(|&(id, center)| {
                 let faces = if id == self.world.arm_marker {
@@ -282,8 +148,8 @@ impl Renderer {
                 };
                 (
                     id,
-                    self.seen(center, faces, side),
-                    self.seen(center, faces, MARKER_SIZE_MM),
+                    self.world.seen_card(center, faces, side),
+                    self.world.seen_card(center, faces, MARKER_SIZE_MM),
                 )
             })
             .collect();
@@ -335,39 +201,6 @@ impl Renderer {
         }
         Ok(truth)
     }
-
-    /// Where the cameras see a card of side `side` centred at `center`: in the
-    /// mirror (reflected) if it is turned to the mirror and in front of it,
-    /// else directly, facing the head.
-    fn seen(&self, center: Vector3<f64>, faces: Facing, side: f64) -> Seen {
-        let head = 0.5 * (self.world.rig.cameras[0].center + self.world.rig.cameras[1].center);
-        let mirror = self
-            .world
-            .mirror
-            .filter(|m| faces == Facing::Mirror && m.plane.signed_distance(&center) > 0.0);
-        match mirror {
-            Some(m) => Seen {
-                mirrored: true,
-                center: m.plane.reflect_point(&center),
-                corners: card_corners(&center, &m.plane.reflect_point(&head), side)
-                    .map(|c| m.plane.reflect_point(&c)),
-            },
-            None => Seen {
-                mirrored: false,
-                center,
-                corners: card_corners(&center, &head, side),
-            },
-        }
-    }
-}
-
-/// A card as the cameras see it: reflected when seen in the mirror.
-#[derive(Debug, Clone, Copy)]
-struct Seen {
-    mirrored: bool,
-    center: Vector3<f64>,
-    /// TL, TR, BR, BL as printed.
-    corners: [Vector3<f64>; 4],
 }
 
 /// Warps a card texture onto the ideal canvas at the projections of its

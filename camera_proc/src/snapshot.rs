@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use opencv::core::{Mat, Vector};
 
-use crate::render::{Facing, Renderer, SimWorld};
+use crate::render::Renderer;
+use geometry::sim::{Facing, SimWorld};
 
 /// Renders one stereo pair of the simulated scene with the arm at `q`
 /// (encoder readings, rad) to `OUT_left.png` and `OUT_right.png`, and

@@ -8,8 +8,9 @@ use anyhow::{Result, bail};
 use messages::{Bus, FrameHeader, JointState, encoding, now_ns, phase, topics};
 
 use crate::clock::FrameClock;
-use crate::render::{Facing, Renderer, SimWorld};
+use crate::render::Renderer;
 use crate::source::StereoSource;
+use geometry::sim::{Facing, SimWorld};
 
 fn header(seq: u64, width: u32, height: u32) -> FrameHeader {
     FrameHeader {

@@ -9,7 +9,8 @@
 //! - [`kinematics`]: standard Denavit-Hartenberg forward kinematics.
 //! - [`plane`]: planes, reflections and the exact mirror-perspective camera.
 //! - [`lsq`]: a thin adapter over the `levenberg-marquardt` crate.
-//! - [`sim`]: a seeded simulator of Nico-like datasets with ground truth.
+//! - [`sim`]: a seeded simulator of Nico-like datasets with ground truth, and the
+//!   simulated world the camera renders ([`sim::SimWorld`]).
 //!
 //! ```
 //! use geometry::{camera::{Camera, Intrinsics}, plane::Plane};
@@ -62,4 +63,12 @@ pub enum GeometryError {
     /// The input does not determine the quantity asked for.
     #[error("degenerate input: {0}")]
     Degenerate(String),
+    /// A simulated mirror placement that the scene does not have.
+    #[error("mirror placement {placement} does not exist (the scene has {placements})")]
+    NoSuchMirror {
+        /// The placement asked for.
+        placement: usize,
+        /// How many the scene has.
+        placements: usize,
+    },
 }

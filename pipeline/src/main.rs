@@ -516,14 +516,14 @@ fn run_placement(
     let cal = report.calibration.as_ref();
     let cams = cal.map(|c| c.mirror_cameras(&data.rig));
     let plane = cal.and_then(|c| c.plane());
-    let hidden = camera_proc::render::SimWorld::nico(mirror)?
+    let hidden = geometry::sim::SimWorld::nico(mirror)?
         .fixed
         .first()
         .map(|f| f.center);
     let hidden_error = hidden.and_then(|h| {
         report
             .located
-            .get(&camera_proc::render::HIDDEN_OBJECT_ID)
+            .get(&geometry::sim::HIDDEN_OBJECT_ID)
             .map(|p| (nalgebra::Vector3::from(*p) - h).norm())
     });
     Ok(PlacementResult {

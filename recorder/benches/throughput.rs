@@ -12,8 +12,9 @@ use std::path::Path;
 use std::time::Instant;
 
 use bytemuck::bytes_of;
-use camera_proc::render::{Facing, Renderer, SimWorld};
+use camera_proc::render::Renderer;
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
+use geometry::sim::{Facing, SimWorld};
 use messages::{FrameHeader, JointState, encoding};
 use recorder::channels::TopicId;
 use recorder::view::ViewBuilder;

@@ -125,7 +125,7 @@ fn live_pipeline_calibrates_against_the_simulators_truth() {
         .iter()
         .map(|v| v.as_f64().unwrap())
         .collect();
-    let world = camera_proc::render::SimWorld::nico(0).unwrap();
+    let world = geometry::sim::SimWorld::nico(0).unwrap();
     let truth = world.fixed[0].center;
     let cal = &live["calibration"]["cameras"][0]["center"];
     let mirror_cam = nalgebra::Vector3::new(

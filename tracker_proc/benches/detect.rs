@@ -3,9 +3,10 @@
 //! dictionary, on the same rendered frames in the same run.
 //! Run: `cargo bench -p tracker_proc --bench detect`.
 
-use camera_proc::render::{Facing, Renderer, SimWorld};
+use camera_proc::render::Renderer;
 use criterion::{Criterion, criterion_group, criterion_main};
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
+use geometry::sim::{Facing, SimWorld};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use std::hint::black_box;

@@ -1,6 +1,7 @@
 //! The tracker on images rendered by the simulated head, against the renderer's truth.
 
-use camera_proc::render::{ARM_MARKER_ID, Facing, ImageNoise, Renderer, SimWorld};
+use camera_proc::render::Renderer;
+use geometry::sim::{ARM_MARKER_ID, Facing, ImageNoise, SimWorld};
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
 use nalgebra::Vector2;
 use opencv::core::{Mat, Scalar};

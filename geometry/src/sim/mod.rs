@@ -8,6 +8,13 @@
 //! read `q_true - offsets`, so the model misplaces the end-effector unless
 //! the offsets are estimated. Detections get i.i.d. Gaussian pixel noise.
 
+mod world;
+
+pub use world::{
+    ARM_MARKER_ID, Facing, FixedMarker, HIDDEN_OBJECT_ID, ImageNoise, MARKER_MARGIN_MM,
+    MARKER_SIZE_MM, SeenCard, SimWorld, card_corners,
+};
+
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -146,7 +153,7 @@ pub struct Dataset {
 const IMAGE_MARGIN_PX: f64 = 15.0;
 /// Half the side of the marker card (code and white margin), mm: the whole
 /// card must be in view for a pose to count as seen.
-pub const CARD_HALF_SIDE_MM: f64 = 45.0;
+pub const CARD_HALF_SIDE_MM: f64 = MARKER_SIZE_MM / 2.0 + MARKER_MARGIN_MM;
 /// Closest the marker may come to the glass, mm.
 const MIN_MIRROR_CLEARANCE_MM: f64 = 40.0;
 /// Pose draws allowed per accepted sample before giving up.
