@@ -5,7 +5,7 @@ use std::ops::ControlFlow;
 use std::time::Duration;
 
 use anyhow::{Result, bail};
-use messages::{Bus, FrameHeader, JointState, encoding, now_ns, phase, topics};
+use messages::{Bus, Encoding, FrameHeader, JointState, Phase, Role, now_ns, topics};
 
 use crate::clock::FrameClock;
 use crate::render::Renderer;
@@ -20,13 +20,13 @@ fn header(seq: u64, width: u32, height: u32) -> FrameHeader {
         width,
         height,
         stride: width,
-        encoding: encoding::MONO8,
+        encoding: Encoding::Mono8 as u32,
     }
 }
 
 /// Direct test poses turn the card to the head; all others to the mirror.
 fn facing(role: u32) -> Facing {
-    if role == messages::role::DIRECT {
+    if role == Role::Direct as u32 {
         Facing::Head
     } else {
         Facing::Mirror
@@ -88,7 +88,7 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
             }
             last_published = Some(published);
             seq += 1;
-            if state.phase == phase::DONE {
+            if state.phase() == Ok(Phase::Done) {
                 after_done += 1;
             }
             Ok(if after_done <= tail_frames {

@@ -3,7 +3,8 @@
 //! - [`rig`]: the robot's cameras and arm, TOML;
 //! - [`samples`]: observed marker positions per pose, CSV;
 //! - [`calibration`]: a mirror calibration, JSON;
-//! - [`evaluation`]: the paper's error metrics, JSON.
+//! - [`evaluation`]: the paper's error metrics, JSON;
+//! - [`plan`]: the pose plan the arm is driven through, CSV.
 //!
 //! Every reader reports a bad file as a [`FormatError`] whose one-line
 //! message names the file and the line or key at fault.
@@ -17,6 +18,7 @@
 
 pub mod calibration;
 pub mod evaluation;
+pub mod plan;
 pub mod rig;
 pub mod samples;
 

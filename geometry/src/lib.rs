@@ -41,7 +41,25 @@ pub use camera::{Camera, Intrinsics};
 pub use kinematics::{Arm, DhJoint};
 pub use plane::Plane;
 pub use rig::Rig;
-pub use sample::{Sample, View};
+pub use sample::{Role, Sample, View};
+
+/// Implements `TryFrom<u32>` for a `#[repr(u32)]` enum with an `ALL` list
+/// of its variants: the variant whose discriminant is the value, or the
+/// value back as the error. For enums that travel as `u32` wire fields.
+#[macro_export]
+macro_rules! try_from_u32 {
+    ($t:ty) => {
+        impl TryFrom<u32> for $t {
+            type Error = u32;
+            fn try_from(value: u32) -> Result<Self, u32> {
+                <$t>::ALL
+                    .into_iter()
+                    .find(|v| *v as u32 == value)
+                    .ok_or(value)
+            }
+        }
+    };
+}
 
 /// Errors of the geometry library.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

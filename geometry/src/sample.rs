@@ -21,6 +21,48 @@ impl View {
     }
 }
 
+/// What a planned pose is for. The discriminants are the wire and
+/// recording values (`role` fields of the messages): never reorder them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u32)]
+pub enum Role {
+    /// Calibration (training) pose, seen in the mirror.
+    Train = 0,
+    /// Test pose, seen in the mirror.
+    Test = 1,
+    /// Test pose, seen directly.
+    Direct = 2,
+}
+
+impl Role {
+    /// Every role.
+    pub const ALL: [Role; 3] = [Role::Train, Role::Test, Role::Direct];
+
+    /// The name used in files (`train`, `test`, `direct`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Train => "train",
+            Role::Test => "test",
+            Role::Direct => "direct",
+        }
+    }
+
+    /// The role with this name in files.
+    pub fn from_name(name: &str) -> Option<Role> {
+        Role::ALL.into_iter().find(|r| r.as_str() == name)
+    }
+
+    /// How the marker is seen at a pose of this role.
+    pub fn view(self) -> View {
+        match self {
+            Role::Direct => View::Direct,
+            Role::Train | Role::Test => View::Mirror,
+        }
+    }
+}
+
+crate::try_from_u32!(Role);
+
 /// One arm pose and what both cameras saw of the marker.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sample {

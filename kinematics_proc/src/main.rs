@@ -9,9 +9,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use kinematics_proc::{Motion, Timing, random_plan, read_plan};
+use kinematics_proc::{Motion, Timing, random_plan};
 use messages::topics::{self, Topic};
-use messages::{Bus, JointState, MAX_JOINTS, now_ns, phase};
+use messages::{Bus, JointState, MAX_JOINTS, Phase, Role, now_ns};
 
 /// Run a pose plan and publish the arm's joint states.
 #[derive(Debug, Parser)]
@@ -62,7 +62,7 @@ fn run(args: Args) -> Result<()> {
         bail!("--rate-hz must be in (0, 1000]");
     }
     let plan = match (&args.plan, args.random) {
-        (Some(path), _) => read_plan(path, arm.dof())?,
+        (Some(path), _) => formats::plan::read(path, arm.dof())?,
         (None, Some(n)) => random_plan(&arm, n, args.seed),
         (None, None) => bail!("give --plan FILE or --random N"),
     };
@@ -107,8 +107,8 @@ fn run(args: Args) -> Result<()> {
                 seq,
                 stamp_ns: stamp,
                 pose: planned.map_or(0, |p| p.pose),
-                phase: state.phase,
-                role: planned.map_or(0, |p| p.role),
+                phase: state.phase as u32,
+                role: planned.map_or(Role::Train, |p| p.role) as u32,
                 dof: state.q.len() as u32,
                 ..JointState::default()
             };
@@ -120,7 +120,7 @@ fn run(args: Args) -> Result<()> {
             seq += 1;
             let _span = tracing::trace_span!("kinematics_step", seq).entered();
             publisher.send(msg).context("publishing joint states")?;
-            Ok(if state.phase == phase::DONE {
+            Ok(if state.phase == Phase::Done {
                 ControlFlow::Break(())
             } else {
                 ControlFlow::Continue(())

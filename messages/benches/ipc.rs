@@ -27,7 +27,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use hdrhistogram::Histogram;
-use messages::{Bus, FrameHeader, encoding, now_ns, topics};
+use messages::{Bus, Encoding, FrameHeader, now_ns, topics};
 
 /// Header of a frame whose two images total `bytes`.
 fn header(seq: u64, bytes: usize) -> FrameHeader {
@@ -41,7 +41,7 @@ fn header(seq: u64, bytes: usize) -> FrameHeader {
         width,
         height: half / width,
         stride: width,
-        encoding: encoding::MONO8,
+        encoding: Encoding::Mono8 as u32,
     }
 }
 

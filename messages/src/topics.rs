@@ -363,7 +363,7 @@ mod tests {
             width: 4,
             height: 2,
             stride: 4,
-            encoding: crate::encoding::MONO8,
+            encoding: crate::Encoding::Mono8 as u32,
         };
         let mut bytes = bytemuck::bytes_of(&header).to_vec();
         bytes.extend((0..16).map(|i| i as u8));

@@ -13,13 +13,53 @@ pub const MAX_MARKER_ID: u32 = 1023;
 /// Largest image side accepted, px.
 pub const MAX_IMAGE_SIDE: u32 = 4096;
 
-/// Pixel encodings of a frame.
-pub mod encoding {
+pub use geometry::Role;
+
+/// Pixel encoding of a frame. The discriminants are the wire and recording
+/// values ([`FrameHeader::encoding`]): never reorder them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u32)]
+pub enum Encoding {
     /// 8-bit grey.
-    pub const MONO8: u32 = 0;
+    Mono8 = 0,
     /// 8-bit blue, green, red.
-    pub const BGR8: u32 = 1;
+    Bgr8 = 1,
 }
+
+impl Encoding {
+    /// Every encoding.
+    pub const ALL: [Encoding; 2] = [Encoding::Mono8, Encoding::Bgr8];
+
+    /// Bytes per pixel.
+    pub fn bytes_per_pixel(self) -> u32 {
+        match self {
+            Encoding::Mono8 => 1,
+            Encoding::Bgr8 => 3,
+        }
+    }
+}
+
+geometry::try_from_u32!(Encoding);
+
+/// Motion phase of the arm. The discriminants are the wire and recording
+/// values ([`JointState::phase`]): never reorder them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u32)]
+pub enum Phase {
+    /// Moving between poses.
+    Moving = 0,
+    /// Holding still at a pose.
+    Settled = 1,
+    /// The pose plan is finished.
+    Done = 2,
+}
+
+impl Phase {
+    /// Every phase.
+    pub const ALL: [Phase; 3] = [Phase::Moving, Phase::Settled, Phase::Done];
+}
+
+geometry::try_from_u32!(Phase);
 
 /// User header of a stereo frame; the payload holds the left then the right
 /// image, each `height * stride` bytes.
@@ -40,18 +80,16 @@ pub struct FrameHeader {
     pub height: u32,
     /// Bytes per image row.
     pub stride: u32,
-    /// [`encoding`] of both images.
+    /// [`Encoding`] of both images.
     pub encoding: u32,
 }
 
 impl FrameHeader {
     /// Bytes per pixel of the encoding, if known.
     pub fn bytes_per_pixel(&self) -> Option<u32> {
-        match self.encoding {
-            encoding::MONO8 => Some(1),
-            encoding::BGR8 => Some(3),
-            _ => None,
-        }
+        Encoding::try_from(self.encoding)
+            .ok()
+            .map(Encoding::bytes_per_pixel)
     }
 
     /// Bytes of one image.
@@ -187,26 +225,6 @@ impl StereoDetections {
     }
 }
 
-/// Motion phases of the arm.
-pub mod phase {
-    /// Moving between poses.
-    pub const MOVING: u32 = 0;
-    /// Holding still at a pose.
-    pub const SETTLED: u32 = 1;
-    /// The pose plan is finished.
-    pub const DONE: u32 = 2;
-}
-
-/// What a pose is for.
-pub mod role {
-    /// Calibration (training) pose, seen in the mirror.
-    pub const TRAIN: u32 = 0;
-    /// Test pose, seen in the mirror.
-    pub const TEST: u32 = 1;
-    /// Test pose, seen directly.
-    pub const DIRECT: u32 = 2;
-}
-
 /// The arm's joint state and the end-effector model's prediction.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[type_name("mirror.JointState.v1")]
@@ -218,9 +236,9 @@ pub struct JointState {
     pub stamp_ns: i64,
     /// Pose id of the plan (the pose being moved to or held).
     pub pose: u64,
-    /// [`phase`].
+    /// [`Phase`].
     pub phase: u32,
-    /// [`role`] of the pose.
+    /// [`Role`] of the pose.
     pub role: u32,
     /// Valid entries in `q`.
     pub dof: u32,
@@ -252,13 +270,23 @@ impl JointState {
         if !finite {
             return Some("non-finite joint angle or model point".into());
         }
-        if self.phase > phase::DONE || self.role > role::DIRECT {
+        if Phase::try_from(self.phase).is_err() || Role::try_from(self.role).is_err() {
             return Some(format!(
                 "phase {} or role {} unknown",
                 self.phase, self.role
             ));
         }
         None
+    }
+
+    /// The phase, or the unknown wire value.
+    pub fn phase(&self) -> Result<Phase, u32> {
+        Phase::try_from(self.phase)
+    }
+
+    /// The pose's role, or the unknown wire value.
+    pub fn role(&self) -> Result<Role, u32> {
+        Role::try_from(self.role)
     }
 }
 
@@ -271,7 +299,7 @@ pub struct MirrorSample {
     pub pose: u64,
     /// Stamp of the detection used, ns.
     pub stamp_ns: i64,
-    /// [`role`] of the pose.
+    /// [`Role`] of the pose.
     pub role: u32,
     /// Valid entries in `q`.
     pub dof: u32,
@@ -290,7 +318,7 @@ impl MirrorSample {
     pub fn to_sample(&self) -> geometry::Sample {
         geometry::Sample {
             pose: self.pose,
-            view: if self.role == role::DIRECT {
+            view: if self.role == Role::Direct as u32 {
                 geometry::View::Direct
             } else {
                 geometry::View::Mirror
@@ -376,7 +404,7 @@ pub struct Prediction {
     pub stamp_ns: i64,
     /// Calibration revision used.
     pub revision: u64,
-    /// [`role`].
+    /// [`Role`].
     pub role: u32,
     /// Explicit padding.
     pub reserved: u32,

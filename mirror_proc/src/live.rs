@@ -20,8 +20,8 @@ use formats::evaluation::Evaluation;
 use geometry::triangulate::triangulate;
 use geometry::{Rig, Sample};
 use messages::{
-    CalibrationMsg, CameraPose, JointState, LocatedObject, MAX_JOINTS, MirrorSample, Prediction,
-    Rejections, StereoDetections, phase, role,
+    CalibrationMsg, CameraPose, JointState, LocatedObject, MAX_JOINTS, MirrorSample, Phase,
+    Prediction, Rejections, Role, StereoDetections,
 };
 use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
@@ -282,7 +282,7 @@ impl Live {
             &mut self.counters.source_restarts,
         );
         self.last_joint_stamp = js.stamp_ns;
-        if js.phase == phase::DONE {
+        if js.phase() == Ok(Phase::Done) {
             self.joints_ended = true;
         }
         self.joints.push_back(js);
@@ -351,7 +351,7 @@ impl Live {
         let same_window = self
             .window
             .as_ref()
-            .is_some_and(|w| w.state.pose == js.pose && js.phase == phase::SETTLED);
+            .is_some_and(|w| w.state.pose == js.pose && js.phase() == Ok(Phase::Settled));
         if same_window {
             return;
         }
@@ -366,7 +366,7 @@ impl Live {
                     missed = n,
                     "no sample: the arm's marker {} was not seen{} in both cameras while the pose held",
                     self.config.arm_marker,
-                    if w.state.role == role::DIRECT {
+                    if w.state.role() == Ok(Role::Direct) {
                         ""
                     } else {
                         " mirror-reversed"
@@ -374,24 +374,24 @@ impl Live {
                 );
             }
         }
-        match js.phase {
+        match js.phase() {
             // A pose plan started again (a restarted kinematics stage): one
             // sample per pose, so the poses already sampled are skipped.
-            phase::SETTLED
+            Ok(Phase::Settled)
                 if self.poses_sampled.contains(&js.pose) && self.repeated_pose != Some(js.pose) =>
             {
                 self.counters.poses_repeated += 1;
                 self.repeated_pose = Some(js.pose);
             }
-            phase::SETTLED if self.poses_sampled.contains(&js.pose) => {}
-            phase::SETTLED => {
+            Ok(Phase::Settled) if self.poses_sampled.contains(&js.pose) => {}
+            Ok(Phase::Settled) => {
                 self.window = Some(Window {
                     opens_ns: js.stamp_ns + self.config.settle_margin_ns,
                     state: js,
                     done: false,
                 });
             }
-            phase::DONE => self.finished = true,
+            Ok(Phase::Done) => self.finished = true,
             _ => {}
         }
     }
@@ -403,7 +403,7 @@ impl Live {
             .as_mut()
             .filter(|w| !w.done && d.stamp_ns >= w.opens_ns)
         {
-            let mirrored = w.state.role != role::DIRECT;
+            let mirrored = w.state.role() != Ok(Role::Direct);
             let found = [
                 d.cameras[0].find(self.config.arm_marker, mirrored),
                 d.cameras[1].find(self.config.arm_marker, mirrored),
@@ -440,7 +440,7 @@ impl Live {
         };
         self.counters.paired += 1;
         out.push(Output::Sample(sample));
-        if state.role == role::TRAIN {
+        if state.role() == Ok(Role::Train) {
             self.train.push(sample);
             if self.train.len() >= self.config.min_train {
                 self.recalibrate(stamp_ns, out);
@@ -461,10 +461,7 @@ impl Live {
                 let mut msg = CalibrationMsg {
                     stamp_ns,
                     revision: self.revision,
-                    method: Method::ALL
-                        .iter()
-                        .position(|m| *m == cal.method)
-                        .unwrap_or(0) as u32,
+                    method: cal.method as u32,
                     samples: cal.samples as u32,
                     train_rms_px: cal.train_rms_px,
                     ..Default::default()
@@ -504,7 +501,7 @@ impl Live {
     fn predict(&self, sample: &MirrorSample, out: &mut Vec<Output>) {
         let Some(cal) = &self.calibration else { return };
         let s = sample.to_sample();
-        let direct = sample.role == role::DIRECT;
+        let direct = sample.role == Role::Direct as u32;
         let cams = if direct {
             self.rig.cameras
         } else {

@@ -2,7 +2,7 @@
 //! of the two input streams give the same outputs.
 
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
-use messages::{CameraMarkers, JointState, Marker, StereoDetections, phase, role};
+use messages::{CameraMarkers, JointState, Marker, Phase, Role, StereoDetections};
 use mirror_proc::live::{Live, LiveConfig, Output};
 
 /// Joint states at 100 Hz (move 100 ms, dwell 200 ms per pose) and
@@ -23,8 +23,8 @@ fn streams() -> (Vec<JointState>, Vec<StereoDetections>, usize) {
     let poses: Vec<_> = data
         .train
         .iter()
-        .map(|s| (s, role::TRAIN))
-        .chain(data.test.iter().map(|s| (s, role::TEST)))
+        .map(|s| (s, Role::Train))
+        .chain(data.test.iter().map(|s| (s, Role::Test)))
         .collect();
     let period = 300_000_000i64;
     let mut joints = Vec::new();
@@ -38,16 +38,16 @@ fn streams() -> (Vec<JointState>, Vec<StereoDetections>, usize) {
         };
         if let Some((s, r)) = poses.get(i) {
             js.pose = s.pose;
-            js.role = *r;
+            js.role = *r as u32;
             js.phase = if t - i as i64 * period >= 100_000_000 {
-                phase::SETTLED
+                Phase::Settled as u32
             } else {
-                phase::MOVING
+                Phase::Moving as u32
             };
             js.q[..4].copy_from_slice(s.joints.as_ref().unwrap());
             js.model_point = s.model_point.unwrap().into();
         } else {
-            js.phase = phase::DONE;
+            js.phase = Phase::Done as u32;
         }
         joints.push(js);
     }
@@ -240,7 +240,7 @@ fn rogue_messages_are_dropped_without_poisoning_the_stage() {
                     },
                     JointState {
                         stamp_ns: i64::MAX,
-                        phase: phase::DONE,
+                        phase: Phase::Done as u32,
                         ..real
                     },
                 ];
@@ -375,7 +375,10 @@ fn bad_geometry_is_reported_and_nothing_is_published() {
     assert!(why.contains("12 of the 20"), "{why}");
 
     // Poses all alike: every pose is the first one.
-    let first = joints.iter().find(|js| js.phase == phase::SETTLED).unwrap();
+    let first = joints
+        .iter()
+        .find(|js| js.phase == Phase::Settled as u32)
+        .unwrap();
     let alike: Vec<JointState> = joints
         .iter()
         .map(|js| JointState {

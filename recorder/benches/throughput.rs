@@ -15,7 +15,7 @@ use bytemuck::bytes_of;
 use camera_proc::render::Renderer;
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
 use geometry::sim::{Facing, SimWorld};
-use messages::{FrameHeader, JointState, encoding};
+use messages::{Encoding, FrameHeader, JointState};
 use recorder::channels::TopicId;
 use recorder::view::ViewBuilder;
 use recorder::writer::{Compression, Entry, WriterOptions, start};
@@ -48,7 +48,7 @@ fn rendered_frames(n: usize) -> Vec<Vec<u8>> {
                 width: W,
                 height: H,
                 stride: W,
-                encoding: encoding::MONO8,
+                encoding: Encoding::Mono8 as u32,
             };
             let ([l, r], _) = renderer
                 .render_pair(s.joints.as_ref().unwrap(), Facing::Mirror, i as u64)

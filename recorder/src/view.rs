@@ -10,7 +10,7 @@ use foxglove::messages::{
     SceneUpdate, SpherePrimitive, TextAnnotation, Timestamp, Vector3, points_annotation,
 };
 use geometry::{Camera, Rig};
-use messages::{CalibrationMsg, CameraMarkers, FrameHeader, JointState, LocatedObject, encoding};
+use messages::{CalibrationMsg, CameraMarkers, Encoding, FrameHeader, JointState, LocatedObject};
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 
 use crate::channels::Message;
@@ -264,7 +264,7 @@ impl ViewBuilder {
     }
 
     fn images(header: &FrameHeader, pixels: &[u8], out: &mut Vec<ViewMessage>) {
-        let encoding = if header.encoding == encoding::BGR8 {
+        let encoding = if header.encoding == Encoding::Bgr8 as u32 {
             "bgr8"
         } else {
             "mono8"

@@ -9,7 +9,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use bytemuck::bytes_of;
-use messages::{FrameHeader, JointState, StereoDetections, encoding};
+use messages::{Encoding, FrameHeader, JointState, StereoDetections};
 use proptest::prelude::*;
 use recorder::channels::{TopicId, log_time};
 use recorder::reader::Recording;
@@ -24,7 +24,7 @@ fn frame(seq: u64) -> Vec<u8> {
         width: 64,
         height: 48,
         stride: 64,
-        encoding: encoding::MONO8,
+        encoding: Encoding::Mono8 as u32,
     };
     let mut data = bytes_of(&header).to_vec();
     data.extend((0..2 * 64 * 48).map(|i| ((i as u64 * 7 + seq) % 251) as u8));

@@ -8,7 +8,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use messages::topics::{FrameTopic, SmallTopic, TopicId, TopicVisitor};
-use messages::{Bus, FrameHeader, encoding};
+use messages::{Bus, Encoding, FrameHeader};
 use recorder::capture::Capture;
 use recorder::reader::Recording;
 use recorder::replay::{Pace, ReplayBus, ReplayOptions, replay};
@@ -43,7 +43,7 @@ impl TopicVisitor for Publish<'_> {
             width: 4,
             height: 2,
             stride: 4,
-            encoding: encoding::MONO8,
+            encoding: Encoding::Mono8 as u32,
         };
         let publisher = self.0.frame_publisher::<T>(16).unwrap();
         publisher

@@ -175,7 +175,7 @@ fn the_stock_dictionary_misses_reversed_markers_ours_flags_them() {
 /// and out-of-order frames.
 #[test]
 fn the_tracker_step_reads_frames_in_place_and_counts_what_it_refuses() {
-    use messages::{FrameHeader, encoding};
+    use messages::{Encoding, FrameHeader};
     use tracker_proc::{Tracked, Tracker};
     let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
     let q = [0.8, 0.1, 0.2, -0.4];
@@ -195,7 +195,7 @@ fn the_tracker_step_reads_frames_in_place_and_counts_what_it_refuses() {
         width: width as u32,
         height: height as u32,
         stride: stride as u32,
-        encoding: encoding::MONO8,
+        encoding: Encoding::Mono8 as u32,
     };
     let mut detector = Detector::new(true).unwrap();
     let expected: Vec<_> = [&l, &r]

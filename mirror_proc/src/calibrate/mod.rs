@@ -38,16 +38,23 @@ pub const MIN_GRAZING_DEG: f64 = 5.0;
 /// the wrong pose leave about 50 px.
 pub const MAX_TRAIN_RMS_PX: f64 = 25.0;
 
-/// A calibration method.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+/// A calibration method. The discriminants are the wire and recording
+/// values (`CalibrationMsg::method`): never reorder them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[repr(u32)]
 pub enum Method {
     /// The paper's per-camera method.
-    Paper,
+    #[serde(rename = "paper")]
+    Paper = 0,
     /// A shared mirror plane.
-    Joint,
+    #[serde(rename = "joint")]
+    Joint = 1,
     /// A shared mirror plane and per-joint encoder offsets.
-    JointKinematics,
+    #[serde(rename = "joint+kinematics")]
+    JointKinematics = 2,
 }
+
+geometry::try_from_u32!(Method);
 
 impl Method {
     /// All methods, in the order reports list them.

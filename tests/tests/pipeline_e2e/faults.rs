@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
 use messages::{
-    Bus, CameraMarkers, FrameHeader, JointState, Marker, StereoDetections, encoding, now_ns, phase,
+    Bus, CameraMarkers, Encoding, FrameHeader, JointState, Marker, Phase, StereoDetections, now_ns,
     topics,
 };
 use serde_json::Value;
@@ -306,12 +306,12 @@ fn rogue(prefix: &str) {
         width: 640,
         height: 480,
         stride: 640,
-        encoding: encoding::MONO8,
+        encoding: Encoding::Mono8 as u32,
     };
     let state = |stamp_ns| JointState {
         stamp_ns,
         dof: 4,
-        phase: phase::MOVING,
+        phase: Phase::Moving as u32,
         ..Default::default()
     };
     let marker = |id, mirrored, x| {

@@ -1,0 +1,168 @@
+//! The run's settings: `pipeline.toml`, with the command line's overrides.
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use mirror_proc::calibrate::Method;
+use serde::{Deserialize, Serialize};
+
+/// The robot and scene a run simulates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// The Nico-like head and arm in front of three mirror placements.
+    Nico,
+}
+
+/// Where the frames come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Source {
+    /// The simulated head renders them.
+    Sim,
+}
+
+/// The run's settings.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// Robot and scene.
+    pub preset: Preset,
+    /// Mirror placements to run, in order.
+    pub mirrors: Vec<usize>,
+    /// Calibration poses per placement.
+    pub train_poses: usize,
+    /// Test poses seen in the mirror, per placement.
+    pub test_poses: usize,
+    /// Test poses seen directly, per placement.
+    pub direct_poses: usize,
+    /// Calibration method.
+    pub method: Method,
+    /// Frame source.
+    pub source: Source,
+    /// Camera frame rate, Hz.
+    pub fps: f64,
+    /// Move time between poses, ms.
+    pub move_ms: u64,
+    /// Dwell time at each pose, ms.
+    pub dwell_ms: u64,
+    /// Seed of the simulated poses.
+    pub seed: u64,
+    /// Training samples before the first calibration.
+    pub min_train: usize,
+}
+
+/// What the command line may override.
+#[derive(Debug, Clone, Default)]
+pub struct Overrides {
+    /// Mirror placements.
+    pub mirrors: Option<Vec<usize>>,
+    /// Calibration poses per placement.
+    pub train_poses: Option<usize>,
+    /// Calibration method.
+    pub method: Option<Method>,
+    /// Camera frame rate, Hz.
+    pub fps: Option<f64>,
+}
+
+impl Config {
+    /// Reads `path`, applies `overrides` and checks the result against the
+    /// simulated scene; errors name the file and the key.
+    pub fn load(path: &Path, overrides: Overrides) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("{}: cannot read", path.display()))?;
+        let mut config: Config = toml::from_str(&text)
+            .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), one_line(e.message())))?;
+        let Overrides {
+            mirrors,
+            train_poses,
+            method,
+            fps,
+        } = overrides;
+        config.mirrors = mirrors.unwrap_or(config.mirrors);
+        config.train_poses = train_poses.unwrap_or(config.train_poses);
+        config.method = method.unwrap_or(config.method);
+        config.fps = fps.unwrap_or(config.fps);
+        let placements = match config.preset {
+            Preset::Nico => geometry::sim::nico_scene().mirrors.len(),
+        };
+        if let Some(bad) = config.mirrors.iter().find(|m| **m >= placements) {
+            bail!(
+                "{}: key mirrors: placement {bad} does not exist (0..={})",
+                path.display(),
+                placements - 1
+            );
+        }
+        if !(config.fps > 0.0 && config.fps <= 1000.0) {
+            bail!(
+                "{}: key fps: {} is not in (0, 1000]",
+                path.display(),
+                config.fps
+            );
+        }
+        Ok(config)
+    }
+}
+
+fn one_line(text: &str) -> String {
+    text.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn load(text: &str, overrides: Overrides) -> Result<Config> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pipeline.toml");
+        std::fs::write(&path, text).unwrap();
+        Config::load(&path, overrides)
+    }
+
+    const GOOD: &str = "preset = \"nico\"\nmirrors = [0, 2]\ntrain_poses = 30\ntest_poses = 20\n\
+        direct_poses = 10\nmethod = \"joint+kinematics\"\nsource = \"sim\"\nfps = 30.0\n\
+        move_ms = 120\ndwell_ms = 180\nseed = 1\nmin_train = 8\n";
+
+    #[test]
+    fn the_repository_config_loads_and_overrides_apply() {
+        let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
+        let config = Config::load(&shipped, Overrides::default()).unwrap();
+        assert_eq!(config.method, Method::JointKinematics);
+        let config = load(
+            GOOD,
+            Overrides {
+                mirrors: Some(vec![1]),
+                method: Some(Method::Paper),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!((config.mirrors, config.method), (vec![1], Method::Paper));
+    }
+
+    #[test]
+    fn bad_values_are_named_with_their_key() {
+        let e = load(
+            &GOOD.replace("joint+kinematics", "best"),
+            Overrides::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("unknown variant `best`") && e.contains("joint+kinematics"),
+            "{e}"
+        );
+        let e = load(&GOOD.replace("\"sim\"", "\"device\""), Overrides::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown variant `device`"), "{e}");
+        let e = load(&GOOD.replace("[0, 2]", "[0, 3]"), Overrides::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.ends_with("key mirrors: placement 3 does not exist (0..=2)"),
+            "{e}"
+        );
+        assert!(!e.contains('\n'));
+    }
+}

@@ -1,0 +1,199 @@
+//! What a run reports: per placement, the mirror stage's report compared
+//! with the simulator's truth and every stage's latencies; the paper's
+//! table and the latency table.
+
+use std::path::PathBuf;
+
+use geometry::sim::{Dataset, HIDDEN_OBJECT_ID, SimWorld};
+use mirror_proc::calibrate::Method;
+use mirror_proc::experiment::{PAPER_FIGURES, rotation_error};
+use mirror_proc::live::LiveReport;
+use serde::Serialize;
+
+/// What the table shows for one placement.
+#[derive(Debug, Clone, Serialize)]
+pub struct PlacementResult {
+    /// The mirror placement.
+    pub mirror: usize,
+    /// The mirror stage's report.
+    pub report: LiveReport,
+    /// Its calibration against the simulator's truth.
+    #[serde(flatten)]
+    pub truth: TruthErrors,
+    /// Stage restarts.
+    pub restarts: u32,
+    /// Wall time of the placement, s.
+    pub seconds: f64,
+    /// The recording, if one was made.
+    pub recording: Option<PathBuf>,
+    /// Each stage process's latencies (HDR histograms) and counters.
+    pub stages: Vec<messages::stats::StageSummary>,
+}
+
+/// The errors of a calibration against the simulator's truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct TruthErrors {
+    /// Angle between the calibrated and the true mirror normal, degrees.
+    pub plane_angle_deg: Option<f64>,
+    /// Distance between the calibrated and the true plane offsets, mm.
+    pub plane_distance_mm: Option<f64>,
+    /// Distance of each mirror camera's centre from the truth, mm.
+    pub camera_center_mm: Option<[f64; 2]>,
+    /// Rotation of each mirror camera from the truth, degrees.
+    pub camera_rotation_deg: Option<[f64; 2]>,
+    /// How far the hidden object was located from where it is, mm.
+    pub hidden_object_error_mm: Option<f64>,
+}
+
+impl TruthErrors {
+    /// Compares `report` with the truth of `data` and of `world`.
+    pub fn of(report: &LiveReport, data: &Dataset, world: &SimWorld) -> Self {
+        let truth_plane = data.truth.mirror.plane;
+        let cal = report.calibration.as_ref();
+        let cams = cal.map(|c| c.mirror_cameras(&data.rig));
+        let plane = cal.and_then(|c| c.plane());
+        let hidden = world.fixed.iter().find(|f| f.id == HIDDEN_OBJECT_ID);
+        Self {
+            plane_angle_deg: plane.map(|p| {
+                p.normal
+                    .dot(&truth_plane.normal)
+                    .clamp(-1.0, 1.0)
+                    .acos()
+                    .to_degrees()
+            }),
+            plane_distance_mm: plane.map(|p| (p.distance - truth_plane.distance).abs()),
+            camera_center_mm: cams.map(|c| {
+                [0, 1].map(|k| (c[k].center - data.truth.mirror_cameras[k].center).norm())
+            }),
+            camera_rotation_deg: cams.map(|c| {
+                [0, 1].map(|k| rotation_error(&c[k], &data.truth.mirror_cameras[k]).to_degrees())
+            }),
+            hidden_object_error_mm: hidden.and_then(|h| {
+                report
+                    .located
+                    .get(&h.id)
+                    .map(|p| (nalgebra::Vector3::from(*p) - h.center).norm())
+            }),
+        }
+    }
+}
+
+fn cell(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.2}"))
+}
+
+/// Per stage and placement: latency percentiles (from each stage's HDR
+/// histograms) and the drop counters.
+pub fn latency_table(results: &[PlacementResult]) -> String {
+    let mut s = String::from("\nLatency per stage, ms (HDR histograms)\n");
+    s += &format!(
+        "  {:<10} {:<14} {:<20} {:>7} {:>8} {:>8} {:>8} {:>8}\n",
+        "placement", "stage", "", "count", "median", "p90", "p99", "max"
+    );
+    for r in results {
+        for stage in &r.stages {
+            for (name, l) in &stage.latencies {
+                s += &format!(
+                    "  {:<10} {:<14} {:<20} {:>7} {:>8.2} {:>8.2} {:>8.2} {:>8.2}\n",
+                    format!("mirror {}", r.mirror),
+                    stage.stage,
+                    name,
+                    l.count,
+                    l.p50_ms,
+                    l.p90_ms,
+                    l.p99_ms,
+                    l.max_ms
+                );
+            }
+        }
+        let counters: Vec<String> = r
+            .stages
+            .iter()
+            .flat_map(|st| {
+                st.counters
+                    .iter()
+                    .filter(|(k, _)| {
+                        k.contains("missed")
+                            || k.contains("dropped")
+                            || k.contains("rejected")
+                            || k.contains("late")
+                            || k.contains("restarts")
+                            || k.contains("repeated")
+                    })
+                    .map(move |(k, v)| format!("{} {k} {v}", st.stage))
+            })
+            .collect();
+        s += &format!("  mirror {} drops: {}\n", r.mirror, counters.join(", "));
+    }
+    s
+}
+
+pub fn table(results: &[PlacementResult], method: Method) -> String {
+    let mut s = format!(
+        "Live pipeline, method {method}: mean errors on the test poses of each placement\n"
+    );
+    s += &format!(
+        "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10}\n",
+        "",
+        "mirror 3D mm",
+        "direct 3D mm",
+        "mirror 2D px",
+        "direct 2D px",
+        "plane deg",
+        "object mm"
+    );
+    let p = PAPER_FIGURES;
+    s += &format!(
+        "  {:<30} {:>12.2} {:>12.2} {:>12.2} {:>12.2} {:>10} {:>10}\n",
+        "Hart & Scassellati 2012 (Nico)",
+        p.mirror_3d_mm,
+        p.direct_3d_mm,
+        p.mirror_2d_px,
+        p.direct_2d_px,
+        "-",
+        "-"
+    );
+    let mut sums = [0.0; 6];
+    let mut counts = [0usize; 6];
+    for r in results {
+        let e = r.report.evaluation.as_ref();
+        let values = [
+            e.and_then(|e| e.mirror_3d_mm),
+            e.and_then(|e| e.direct_3d_mm),
+            e.and_then(|e| e.mirror_2d_px),
+            e.and_then(|e| e.direct_2d_px),
+            r.truth.plane_angle_deg,
+            r.truth.hidden_object_error_mm,
+        ];
+        for (i, v) in values.iter().enumerate() {
+            if let Some(v) = v {
+                sums[i] += v;
+                counts[i] += 1;
+            }
+        }
+        s += &format!(
+            "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10}   ({} train / {} test samples)\n",
+            format!("mirror placement {}", r.mirror),
+            cell(values[0]),
+            cell(values[1]),
+            cell(values[2]),
+            cell(values[3]),
+            cell(values[4]),
+            cell(values[5]),
+            r.report.train_samples,
+            r.report.test_samples
+        );
+    }
+    let mean = |i: usize| (counts[i] > 0).then(|| sums[i] / counts[i] as f64);
+    s += &format!(
+        "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10}\n",
+        "mean",
+        cell(mean(0)),
+        cell(mean(1)),
+        cell(mean(2)),
+        cell(mean(3)),
+        cell(mean(4)),
+        cell(mean(5))
+    );
+    s
+}

@@ -1,0 +1,273 @@
+//! One placement's run: write its rig and plan, start the stages from
+//! their specs, follow the progress, stop them, and compare the result with
+//! the simulator's truth.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use formats::plan::PlannedPose;
+use geometry::Role;
+use geometry::sim::{Counts, Dataset, SimWorld, generate, nico_noise, nico_scene};
+use messages::topics::{self, TopicId};
+use messages::{Bus, CalibrationMsg};
+use mirror_proc::live::LiveReport;
+
+use crate::config::Config;
+use crate::report::{PlacementResult, TruthErrors};
+use crate::stages::{StageArgs, subscribers_of};
+use crate::supervise::{Launch, Progress, Supervisor, see, wait_ready};
+
+/// How long the consumers may take to subscribe.
+const READY_WITHIN: Duration = Duration::from_secs(30);
+
+/// The settings every placement of a run shares.
+pub struct Run {
+    /// The run's settings.
+    pub config: Config,
+    /// The config file (attached to recordings).
+    pub config_path: PathBuf,
+    /// Output directory.
+    pub out: PathBuf,
+    /// Directory of the stage binaries.
+    pub bin_dir: PathBuf,
+    /// Service prefix; each placement appends `_m<i>`.
+    pub prefix: String,
+    /// Record each placement.
+    pub record: bool,
+    /// Serve the live view on this port.
+    pub live_view: Option<u16>,
+    /// Trace every stage step.
+    pub trace: bool,
+    /// Set by Ctrl-C.
+    pub stop: Arc<AtomicBool>,
+}
+
+/// The simulated dataset of a placement and the pose plan made from it.
+fn plan_for(config: &Config, mirror: usize) -> Result<(Dataset, Vec<PlannedPose>)> {
+    let counts = Counts {
+        train: config.train_poses,
+        test: config.test_poses,
+        direct: config.direct_poses,
+    };
+    let data = generate(&nico_scene(), mirror, &nico_noise(), counts, config.seed)?;
+    let plan = [
+        (&data.train, Role::Train),
+        (&data.test, Role::Test),
+        (&data.direct, Role::Direct),
+    ]
+    .into_iter()
+    .flat_map(|(samples, role)| {
+        samples.iter().map(move |s| PlannedPose {
+            pose: s.pose,
+            role,
+            q: s.joints.clone().unwrap_or_default(),
+        })
+    })
+    .collect();
+    Ok((data, plan))
+}
+
+/// Removes what an earlier run left at `path`, if anything.
+fn clear(path: &Path) {
+    let _ = std::fs::remove_file(path);
+    let _ = std::fs::remove_dir_all(path);
+}
+
+impl Run {
+    fn stopping(&self) -> bool {
+        self.stop.load(Ordering::SeqCst)
+    }
+
+    /// Runs placement `mirror` end to end.
+    pub fn placement(&self, mirror: usize) -> Result<PlacementResult> {
+        let config = &self.config;
+        let dir = self.out.join(format!("mirror{mirror}"));
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("{}: cannot create", dir.display()))?;
+        let (data, plan) = plan_for(config, mirror)?;
+        let rig = dir.join("rig.toml");
+        formats::rig::write(&rig, &data.rig)?;
+        let plan_path = dir.join("plan.csv");
+        formats::plan::write(&plan_path, &plan)?;
+        let report_path = dir.join("report.json");
+        let recording = dir.join("recording.mcap");
+        let launch = Launch {
+            bin_dir: self.bin_dir.clone(),
+            prefix: format!("{}_m{mirror}", self.prefix),
+            log: dir.join("stages.log"),
+            trace_dir: self.trace.then(|| dir.join("trace")),
+            stats_dir: dir.join("stats"),
+        };
+        for stale in [&report_path, &launch.log, &launch.stats_dir]
+            .into_iter()
+            .chain(&launch.trace_dir)
+        {
+            clear(stale);
+        }
+        let started = Instant::now();
+        // The launcher holds every service for the whole run, so a stage that
+        // crashes never takes a service down with it (see Bus::open_all).
+        let bus = Bus::new(&launch.prefix, "pipeline")?;
+        let _services = bus.open_all()?;
+
+        // The stage table: consumers first (the recorder first of all, so it
+        // sees every message), then the arm once every consumer listens.
+        let mut consumers = Vec::new();
+        if self.record {
+            consumers.push(StageArgs::Recorder {
+                out: recording.clone(),
+                rig: rig.clone(),
+                attach: vec![plan_path.clone(), self.config_path.clone()],
+                meta: vec![
+                    ("mirror".into(), mirror.to_string()),
+                    ("method".into(), config.method.to_string()),
+                    ("fps".into(), config.fps.to_string()),
+                ],
+                live_view: self.live_view,
+            });
+        }
+        consumers.extend([
+            StageArgs::Mirror {
+                rig: rig.clone(),
+                method: config.method,
+                min_train: config.min_train,
+                report: report_path.clone(),
+            },
+            StageArgs::Tracker,
+            StageArgs::Camera {
+                mirror,
+                fps: config.fps,
+            },
+        ]);
+        let arm = StageArgs::Kinematics {
+            rig: rig.clone(),
+            plan: plan_path,
+            move_ms: config.move_ms,
+            dwell_ms: config.dwell_ms,
+            wait_subscribers: subscribers_of(&consumers, TopicId::JointState),
+        };
+
+        let mut supervisor = Supervisor::new(&launch);
+        for stage in consumers {
+            supervisor.start(stage)?;
+        }
+        if !wait_ready(&supervisor, &bus, READY_WITHIN, &|| self.stopping())? {
+            supervisor.stop();
+            if self.stopping() {
+                bail!("interrupted");
+            }
+            bail!(
+                "mirror {mirror}: the stages did not come up within {} s ({})",
+                READY_WITHIN.as_secs(),
+                see(&launch.log)
+            );
+        }
+        supervisor.start(arm)?;
+        let plan_seconds = plan.len() as f64 * (config.move_ms + config.dwell_ms) as f64 / 1000.0;
+        let outcome = self.follow(
+            &mut supervisor,
+            &bus,
+            mirror,
+            plan.len(),
+            Duration::from_secs_f64(plan_seconds * 3.0 + 60.0),
+        );
+        let recorded = supervisor.is_running("recorder");
+        let stopped = supervisor.stop();
+        for line in &stopped.unclean {
+            eprintln!("mirror {mirror}: stopping {line}");
+        }
+        match outcome? {
+            Progress::Done => {}
+            Progress::Running => bail!(
+                "mirror {mirror}: the run did not finish in time ({})",
+                see(&launch.log)
+            ),
+            Progress::Failed(name) => bail!("{name} keeps failing ({})", see(&launch.log)),
+        }
+        if let Some(t) = &launch.trace_dir {
+            let merged = dir.join("trace.json");
+            let events = messages::trace::merge(t, &merged)
+                .with_context(|| format!("{}: cannot merge the traces", t.display()))?;
+            eprintln!(
+                "trace: {} ({events} events; open in https://ui.perfetto.dev)",
+                merged.display()
+            );
+        }
+        let report: LiveReport = serde_json::from_str(
+            &std::fs::read_to_string(&report_path)
+                .with_context(|| format!("{}: missing", report_path.display()))?,
+        )
+        .with_context(|| format!("{}: unreadable", report_path.display()))?;
+        if report.calibration.is_none() {
+            eprintln!(
+                "mirror {mirror}: no calibration: {}",
+                report.last_error.as_deref().unwrap_or("no reason given")
+            );
+        }
+        let truth = TruthErrors::of(&report, &data, &SimWorld::nico(mirror)?);
+        Ok(PlacementResult {
+            mirror,
+            report,
+            truth,
+            restarts: stopped.restarts,
+            seconds: started.elapsed().as_secs_f64(),
+            recording: recorded.then_some(recording),
+            stages: messages::stats::read_all(&launch.stats_dir),
+        })
+    }
+
+    /// Shows the progress from the stages' outputs and watches the stages
+    /// until the run is done, fails, is interrupted or runs out of `time`.
+    fn follow(
+        &self,
+        supervisor: &mut Supervisor<'_>,
+        bus: &Bus,
+        mirror: usize,
+        total: usize,
+        time: Duration,
+    ) -> Result<Progress> {
+        let samples = bus.subscriber::<topics::Samples>()?;
+        let calibrations = bus.subscriber::<topics::Calibration>()?;
+        let (mut paired, mut last_cal) = (0usize, None::<CalibrationMsg>);
+        let terminal = std::io::stderr().is_terminal();
+        let mut shown = String::new();
+        let deadline = Instant::now() + time;
+        let progress = loop {
+            while samples.receive()?.is_some() {
+                paired += 1;
+            }
+            while let Some(c) = calibrations.receive()? {
+                last_cal = Some(c);
+            }
+            let line = format!(
+                "mirror {mirror}: {paired}/{total} poses paired, calibration revision {} (train RMS {:.2} px)",
+                last_cal.map_or(0, |c| c.revision),
+                last_cal.map_or(f64::NAN, |c| c.train_rms_px)
+            );
+            if line != shown {
+                if terminal {
+                    eprint!("\r{line}   ")
+                } else {
+                    eprintln!("{line}")
+                }
+                shown = line;
+            }
+            if self.stopping() {
+                bail!("interrupted");
+            }
+            match supervisor.watch()? {
+                Progress::Running if Instant::now() > deadline => break Progress::Running,
+                Progress::Running => std::thread::sleep(Duration::from_millis(50)),
+                done_or_failed => break done_or_failed,
+            }
+        };
+        if terminal {
+            eprintln!();
+        }
+        Ok(progress)
+    }
+}

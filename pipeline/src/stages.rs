@@ -1,0 +1,223 @@
+//! The stages of a placement's run, as a table of specs: which binary, its
+//! typed arguments, its restart policy and the topics it subscribes to.
+//! Start order, readiness, restarts and stop order all derive from it.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use messages::topics::TopicId;
+use mirror_proc::calibrate::Method;
+
+/// What a stage's exit means, and whether it is started again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RestartPolicy {
+    /// Runs until the run ends: any exit is a crash, restarted.
+    Service,
+    /// May finish by itself (exit 0); a failure is restarted.
+    Finishes,
+    /// Its successful exit ends the run; a failure is restarted.
+    EndsRun,
+    /// Never restarted (a restart would overwrite its output); if it
+    /// stops, the run goes on without it.
+    Optional,
+}
+
+/// Restarts allowed per stage before the run fails.
+pub const MAX_RESTARTS: u32 = 3;
+
+/// Each stage binary's arguments, typed.
+#[derive(Debug, Clone)]
+pub enum StageArgs {
+    /// `recorder`: every topic into one MCAP file.
+    Recorder {
+        /// The recording.
+        out: PathBuf,
+        /// The rig, for the viewing channels and as an attachment.
+        rig: PathBuf,
+        /// More files to attach.
+        attach: Vec<PathBuf>,
+        /// `run` metadata, KEY=VALUE.
+        meta: Vec<(String, String)>,
+        /// Serve the live view on this localhost port.
+        live_view: Option<u16>,
+    },
+    /// `mirror_proc run`: pairing, calibration, predictions.
+    Mirror {
+        /// The rig.
+        rig: PathBuf,
+        /// Calibration method.
+        method: Method,
+        /// Training samples before the first calibration.
+        min_train: usize,
+        /// Where the final report goes.
+        report: PathBuf,
+    },
+    /// `tracker_proc run`: ArUco detection.
+    Tracker,
+    /// `camera_proc sim`: the simulated head.
+    Camera {
+        /// Mirror placement.
+        mirror: usize,
+        /// Frame rate, Hz.
+        fps: f64,
+    },
+    /// `kinematics_proc`: the arm's driver on a pose plan.
+    Kinematics {
+        /// The rig.
+        rig: PathBuf,
+        /// The pose plan.
+        plan: PathBuf,
+        /// Move time between poses, ms.
+        move_ms: u64,
+        /// Dwell time at each pose, ms.
+        dwell_ms: u64,
+        /// Joint-state subscribers to wait for before moving.
+        wait_subscribers: usize,
+    },
+}
+
+impl StageArgs {
+    /// The binary.
+    pub fn binary(&self) -> &'static str {
+        match self {
+            StageArgs::Recorder { .. } => "recorder",
+            StageArgs::Mirror { .. } => "mirror_proc",
+            StageArgs::Tracker => "tracker_proc",
+            StageArgs::Camera { .. } => "camera_proc",
+            StageArgs::Kinematics { .. } => "kinematics_proc",
+        }
+    }
+
+    /// The topics the stage subscribes to (its binary's contract).
+    pub fn subscribes(&self) -> &'static [TopicId] {
+        match self {
+            StageArgs::Recorder { .. } => &TopicId::ALL,
+            StageArgs::Mirror { .. } => &[TopicId::JointState, TopicId::Detections],
+            StageArgs::Tracker => &[TopicId::Frames],
+            StageArgs::Camera { .. } => &[TopicId::JointState],
+            StageArgs::Kinematics { .. } => &[],
+        }
+    }
+
+    /// The command line, for pipeline `prefix`.
+    pub fn argv(&self, prefix: &str) -> Vec<String> {
+        let path = |p: &PathBuf| p.display().to_string();
+        let mut argv: Vec<String> = match self {
+            StageArgs::Recorder { .. } | StageArgs::Kinematics { .. } => vec![],
+            StageArgs::Mirror { .. } | StageArgs::Tracker => vec!["run".into()],
+            StageArgs::Camera { .. } => vec!["sim".into()],
+        };
+        argv.extend(["--prefix".into(), prefix.into()]);
+        let mut flag = |name: &str, value: String| argv.extend([format!("--{name}"), value]);
+        match self {
+            StageArgs::Recorder {
+                out,
+                rig,
+                attach,
+                meta,
+                live_view,
+            } => {
+                flag("out", path(out));
+                flag("rig", path(rig));
+                for a in attach {
+                    flag("attach", path(a));
+                }
+                for (k, v) in meta {
+                    flag("meta", format!("{k}={v}"));
+                }
+                if let Some(port) = live_view {
+                    flag("live-view", port.to_string());
+                }
+                argv.push("--overwrite".into());
+            }
+            StageArgs::Mirror {
+                rig,
+                method,
+                min_train,
+                report,
+            } => {
+                flag("rig", path(rig));
+                flag("method", method.to_string());
+                flag("min-train", min_train.to_string());
+                flag("report", path(report));
+            }
+            StageArgs::Tracker => {}
+            StageArgs::Camera { mirror, fps } => {
+                flag("mirror", mirror.to_string());
+                flag("fps", fps.to_string());
+            }
+            StageArgs::Kinematics {
+                rig,
+                plan,
+                move_ms,
+                dwell_ms,
+                wait_subscribers,
+            } => {
+                flag("rig", path(rig));
+                flag("plan", path(plan));
+                flag("move-ms", move_ms.to_string());
+                flag("dwell-ms", dwell_ms.to_string());
+                flag("wait-subscribers", wait_subscribers.to_string());
+            }
+        }
+        argv
+    }
+
+    /// The stage's restart policy.
+    pub fn restart_policy(&self) -> RestartPolicy {
+        match self {
+            StageArgs::Recorder { .. } => RestartPolicy::Optional,
+            StageArgs::Mirror { .. } => RestartPolicy::EndsRun,
+            StageArgs::Tracker => RestartPolicy::Service,
+            StageArgs::Camera { .. } | StageArgs::Kinematics { .. } => RestartPolicy::Finishes,
+        }
+    }
+
+    /// How long it may take to stop after SIGINT before it is killed: the
+    /// recorder takes what is waiting and finishes its file.
+    pub fn stop_grace(&self) -> Duration {
+        match self {
+            StageArgs::Recorder { .. } => Duration::from_secs(60),
+            _ => Duration::from_secs(3),
+        }
+    }
+}
+
+/// How many of `stages` subscribe to `topic`.
+pub fn subscribers_of(stages: &[StageArgs], topic: TopicId) -> usize {
+    stages
+        .iter()
+        .filter(|s| s.subscribes().contains(&topic))
+        .count()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn command_lines_follow_the_typed_arguments() {
+        let mirror = StageArgs::Mirror {
+            rig: "r.toml".into(),
+            method: Method::Joint,
+            min_train: 8,
+            report: "out/report.json".into(),
+        };
+        assert_eq!(
+            mirror.argv("p").join(" "),
+            "run --prefix p --rig r.toml --method joint --min-train 8 --report out/report.json"
+        );
+        let camera = StageArgs::Camera {
+            mirror: 2,
+            fps: 30.0,
+        };
+        assert_eq!(
+            camera.argv("p").join(" "),
+            "sim --prefix p --mirror 2 --fps 30"
+        );
+        let stages = [mirror, StageArgs::Tracker, camera];
+        assert_eq!(subscribers_of(&stages, TopicId::JointState), 2);
+        assert_eq!(subscribers_of(&stages, TopicId::Frames), 1);
+        assert_eq!(subscribers_of(&stages, TopicId::Samples), 0);
+    }
+}
