@@ -11,7 +11,6 @@
 //! renderer.render(&[0.8, 0.1, 0.2, -0.4], Facing::Mirror, 1, &mut left, &mut right)?;
 //! # Ok::<(), anyhow::Error>(())
 //! ```
-#![warn(missing_docs)]
 
 pub mod clock;
 pub mod render;

@@ -14,7 +14,6 @@
 //! let samples = formats::samples::read("train.csv", rig.arm.as_ref().map(|a| a.dof()))?;
 //! # Ok::<(), formats::FormatError>(())
 //! ```
-#![warn(missing_docs)]
 
 pub mod calibration;
 pub mod evaluation;

@@ -26,7 +26,6 @@
 //! let b = cam.project(&mirror.reflect_point(&p)).unwrap();
 //! assert!((a - b).norm() < 1e-9);
 //! ```
-#![warn(missing_docs)]
 
 pub mod camera;
 pub mod kinematics;

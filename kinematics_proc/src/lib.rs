@@ -14,7 +14,6 @@
 //! assert_eq!(s.phase, messages::Phase::Settled);
 //! assert_eq!(s.q, vec![0.0, 1.0]);
 //! ```
-#![warn(missing_docs)]
 
 pub use formats::plan::PlannedPose;
 use geometry::{Arm, Role};

@@ -424,6 +424,7 @@ impl FramePublisher {
         self.send_frame(header, false, fill)
     }
 
+    #[allow(unsafe_code)]
     fn send_frame<E>(
         &self,
         header: FrameHeader,

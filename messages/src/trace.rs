@@ -61,6 +61,7 @@ impl Visit for Args<'_> {
     }
 }
 
+#[allow(unsafe_code)]
 fn thread_id() -> u64 {
     // SAFETY: gettid(2) has no preconditions.
     unsafe { libc::gettid() as u64 }

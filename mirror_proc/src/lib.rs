@@ -12,7 +12,6 @@
 //! let truth = data.truth.mirror_cameras[0].center;
 //! assert!((cal.mirror_cameras[0].center - truth).norm() < 1e-6);
 //! ```
-#![warn(missing_docs)]
 
 pub mod calibrate;
 pub mod cli;

@@ -17,7 +17,6 @@
 //! println!("{} lossless messages", recording.contents().total());
 //! # Ok::<(), recorder::reader::ReadError>(())
 //! ```
-#![warn(missing_docs)]
 
 pub mod capture;
 pub mod channels;
@@ -78,8 +77,7 @@ pub fn record(
         ViewBuilder::new(options.rig),
         live,
         options.drop_frames,
-    )
-    .map_err(anyhow::Error::msg)?;
+    )?;
     tracing::info!(prefix, path = %path.display(), "recording");
     let captured = bus.wake()?.run(
         &capture.listeners(),
@@ -89,7 +87,7 @@ pub fn record(
     // The writer's own error says more than the capture's "writer stopped".
     match (handle.finish(), captured) {
         (Ok(summary), Ok(())) => Ok(summary),
-        (Err(e), _) => Err(anyhow::Error::msg(e).context("recording stopped")),
+        (Err(e), _) => Err(anyhow::Error::from(e).context("recording stopped")),
         (Ok(_), Err(e)) => Err(anyhow::Error::from(e).context("recording stopped")),
     }
 }

@@ -147,10 +147,10 @@ impl ReplayBus {
     pub fn create(prefix: &str, recording: &Recording, topics: &[TopicId]) -> anyhow::Result<Self> {
         let bus = Bus::new(prefix, "replay")?.lossless();
         let services = bus.open_all().map_err(|e| {
-            anyhow::anyhow!(
-                "{e} (replay must create the services of prefix `{prefix}` before the stages \
-                 start; is a live pipeline using this prefix?)"
-            )
+            anyhow::Error::from(e).context(format!(
+                "replay must create the services of prefix `{prefix}` before the stages \
+                 start; is a live pipeline using this prefix?"
+            ))
         })?;
         let publishers = TopicId::ALL
             .into_iter()

@@ -129,6 +129,46 @@ pub struct RecordingSummary {
     pub file_bytes: u64,
 }
 
+/// Why a recording could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum WriterError {
+    /// The file could not be created.
+    #[error("{}: cannot create", path.display())]
+    Create {
+        /// The recording.
+        path: PathBuf,
+        /// The I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file to attach could not be read.
+    #[error("{}: cannot attach", path.display())]
+    Attach {
+        /// The file to attach.
+        path: PathBuf,
+        /// The I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// Writing the MCAP file failed (the cause says why: disk full, file too large).
+    #[error("{}: {what}", path.display())]
+    Write {
+        /// The recording.
+        path: PathBuf,
+        /// What was being written.
+        what: String,
+        /// The MCAP writer's error.
+        #[source]
+        source: mcap::McapError,
+    },
+    /// The writer thread could not be started.
+    #[error("cannot start the writer thread")]
+    Thread(#[source] std::io::Error),
+    /// The writer thread panicked.
+    #[error("the writer thread panicked")]
+    Panicked,
+}
+
 /// The writer thread has stopped (its error comes from [`RecorderHandle::finish`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[error("the writer stopped")]
@@ -142,7 +182,7 @@ pub struct RecorderHandle {
     /// Shared counters.
     pub counters: Arc<Counters>,
     failed: Arc<AtomicBool>,
-    thread: JoinHandle<Result<(), String>>,
+    thread: JoinHandle<Result<(), WriterError>>,
     path: PathBuf,
 }
 
@@ -177,12 +217,10 @@ impl RecorderHandle {
 
     /// Closes the queues, waits for the writer to write everything and
     /// finish the file (summary and index), and returns the summary.
-    pub fn finish(self) -> Result<RecordingSummary, String> {
+    pub fn finish(self) -> Result<RecordingSummary, WriterError> {
         drop(self.small);
         drop(self.frames);
-        self.thread
-            .join()
-            .map_err(|_| "the writer thread panicked".to_string())??;
+        self.thread.join().map_err(|_| WriterError::Panicked)??;
         let c = &self.counters;
         Ok(RecordingSummary {
             messages: TopicId::ALL
@@ -209,12 +247,14 @@ pub fn start(
     view: ViewBuilder,
     live: Option<LiveView>,
     drop_frames: bool,
-) -> Result<RecorderHandle, String> {
-    let file = File::create(path).map_err(|e| format!("{}: cannot create: {e}", path.display()))?;
-    let mut mcap = Mcap::new(BufWriter::with_capacity(1 << 20, file), &options)
-        .map_err(|e| format!("{}: {}", path.display(), describe(&e)))?;
-    for (name, path) in &options.attachments {
-        mcap.attach(name, path)?;
+) -> Result<RecorderHandle, WriterError> {
+    let file = File::create(path).map_err(|source| WriterError::Create {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mut mcap = Mcap::new(BufWriter::with_capacity(1 << 20, file), &options, path)?;
+    for (name, attached) in &options.attachments {
+        mcap.attach(name, attached)?;
     }
     for (name, entries) in &options.metadata {
         mcap.writer
@@ -222,7 +262,7 @@ pub fn start(
                 name: name.clone(),
                 metadata: entries.clone(),
             })
-            .map_err(|e| format!("writing metadata {name}: {}", describe(&e)))?;
+            .map_err(mcap.failed(format!("writing metadata {name}")))?;
     }
     let (small_tx, small_rx) = bounded::<Entry>(16 * 1024);
     let (frames_tx, frames_rx) = bounded::<Entry>(options.frame_queue.max(1));
@@ -231,7 +271,6 @@ pub fn start(
     let thread = {
         let counters = counters.clone();
         let failed = failed.clone();
-        let path = path.to_path_buf();
         let mut view = view;
         view.images = options.view_images;
         std::thread::Builder::new()
@@ -240,14 +279,13 @@ pub fn start(
                 let result = write_loop(
                     &mut mcap, small_rx, frames_rx, &options, view, live, &counters,
                 )
-                .and_then(|()| mcap.finish())
-                .map_err(|e| format!("{}: {e}", path.display()));
+                .and_then(|()| mcap.finish());
                 if result.is_err() {
                     failed.store(true, Ordering::Relaxed);
                 }
                 result
             })
-            .map_err(|e| format!("cannot start the writer thread: {e}"))?
+            .map_err(WriterError::Thread)?
     };
     Ok(RecorderHandle {
         small: small_tx,
@@ -268,7 +306,7 @@ fn write_loop(
     mut view: ViewBuilder,
     live: Option<LiveView>,
     counters: &Counters,
-) -> Result<(), String> {
+) -> Result<(), WriterError> {
     let mut last_flush = Instant::now();
     let (mut small_open, mut frames_open) = (true, true);
     while small_open || frames_open {
@@ -307,7 +345,9 @@ fn write_loop(
             mcap.write_entry(&entry, &mut view, live.as_ref(), counters)?;
         }
         if last_flush.elapsed() >= options.flush_every {
-            mcap.writer.flush().map_err(|e| describe(&e))?;
+            mcap.writer
+                .flush()
+                .map_err(mcap.failed("finishing a chunk"))?;
             counters.timed_flushes.fetch_add(1, Ordering::Relaxed);
             last_flush = Instant::now();
         }
@@ -317,13 +357,34 @@ fn write_loop(
 
 /// The MCAP writer with every channel registered up front.
 struct Mcap {
+    path: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
     lossless: HashMap<TopicId, (u16, u32)>,
     views: HashMap<ViewTopic, (u16, u32)>,
 }
 
 impl Mcap {
-    fn new(out: BufWriter<File>, options: &WriterOptions) -> Result<Self, mcap::McapError> {
+    fn new(
+        out: BufWriter<File>,
+        options: &WriterOptions,
+        path: &Path,
+    ) -> Result<Self, WriterError> {
+        let mut mcap = Self::create(out, options).map_err(|source| WriterError::Write {
+            path: path.to_path_buf(),
+            what: "starting the file".into(),
+            source,
+        })?;
+        mcap.path = path.to_path_buf();
+        Ok(mcap)
+    }
+
+    /// The error of `what` failing on this file.
+    fn failed(&self, what: impl Into<String>) -> impl FnOnce(mcap::McapError) -> WriterError {
+        let (path, what) = (self.path.clone(), what.into());
+        move |source| WriterError::Write { path, what, source }
+    }
+
+    fn create(out: BufWriter<File>, options: &WriterOptions) -> Result<Self, mcap::McapError> {
         let mut writer = mcap::WriteOptions::new()
             .compression(options.compression.mcap())
             .chunk_size(Some(options.chunk_bytes))
@@ -350,15 +411,18 @@ impl Mcap {
             views.insert(v, (id, 0));
         }
         Ok(Self {
+            path: PathBuf::new(),
             writer,
             lossless,
             views,
         })
     }
 
-    fn attach(&mut self, name: &str, path: &Path) -> Result<(), String> {
-        let data =
-            std::fs::read(path).map_err(|e| format!("{}: cannot attach: {e}", path.display()))?;
+    fn attach(&mut self, name: &str, path: &Path) -> Result<(), WriterError> {
+        let data = std::fs::read(path).map_err(|source| WriterError::Attach {
+            path: path.to_path_buf(),
+            source,
+        })?;
         let now = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos() as u64);
@@ -377,7 +441,7 @@ impl Mcap {
                 .into(),
                 data: data.into(),
             })
-            .map_err(|e| format!("attaching {name}: {}", describe(&e)))
+            .map_err(self.failed(format!("attaching {name}")))
     }
 
     fn write_entry(
@@ -386,7 +450,7 @@ impl Mcap {
         view: &mut ViewBuilder,
         live: Option<&LiveView>,
         counters: &Counters,
-    ) -> Result<(), String> {
+    ) -> Result<(), WriterError> {
         let (id, seq) = self.lossless.get_mut(&entry.topic).expect("registered");
         *seq += 1;
         self.writer
@@ -399,7 +463,11 @@ impl Mcap {
                 },
                 &entry.data,
             )
-            .map_err(|e| describe(&e))?;
+            .map_err(|source| WriterError::Write {
+                path: self.path.clone(),
+                what: format!("writing a {} message", entry.topic.name()),
+                source,
+            })?;
         counters.written[entry.topic.index()].fetch_add(1, Ordering::Relaxed);
         counters
             .lossless_bytes
@@ -425,7 +493,7 @@ impl Mcap {
         v: &ViewMessage,
         publish_time: u64,
         counters: &Counters,
-    ) -> Result<(), String> {
+    ) -> Result<(), WriterError> {
         let (id, seq) = self.views.get_mut(&v.topic).expect("registered");
         *seq += 1;
         counters
@@ -441,23 +509,17 @@ impl Mcap {
                 },
                 &v.data,
             )
-            .map_err(|e| describe(&e))
+            .map_err(|source| WriterError::Write {
+                path: self.path.clone(),
+                what: format!("writing {}", v.topic.name()),
+                source,
+            })
     }
 
-    fn finish(&mut self) -> Result<(), String> {
-        self.writer.finish().map_err(|e| describe(&e))?;
-        Ok(())
+    fn finish(&mut self) -> Result<(), WriterError> {
+        self.writer
+            .finish()
+            .map(|_summary| ())
+            .map_err(self.failed("finishing the file (summary and index)"))
     }
-}
-
-/// An MCAP error with its cause (the I/O error says what is wrong: disk
-/// full, file too large).
-fn describe(e: &mcap::McapError) -> String {
-    let mut text = e.to_string();
-    let mut source = std::error::Error::source(e);
-    while let Some(cause) = source {
-        text += &format!(": {cause}");
-        source = cause.source();
-    }
-    text
 }

@@ -42,6 +42,7 @@ pub struct LiveRun {
     pub out: PathBuf,
 }
 
+/// The shared live run, made by the first test that needs it.
 pub fn live_run() -> &'static LiveRun {
     static RUN: OnceLock<LiveRun> = OnceLock::new();
     RUN.get_or_init(|| {

@@ -17,7 +17,6 @@
 //! }
 //! # Ok::<(), anyhow::Error>(())
 //! ```
-#![warn(missing_docs)]
 
 pub mod step;
 

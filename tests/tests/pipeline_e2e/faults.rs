@@ -125,6 +125,7 @@ fn pid_of(name: &str, prefix: &str) -> Option<i32> {
         })
 }
 
+#[allow(unsafe_code)]
 fn kill9(name: &str, prefix: &str) {
     let pid = pid_of(name, prefix).unwrap_or_else(|| panic!("{name} is not running"));
     // SAFETY: plain kill(2) on a pid we just read.
@@ -523,8 +524,7 @@ fn shared_memory_is_private_and_a_crash_leaves_nothing_behind() {
         }
     }
     let pid = first.0.id() as i32;
-    // SAFETY: plain kill(2) on our child.
-    assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
+    first.0.kill().unwrap();
     first.0.wait().unwrap();
     let node_of = |pid: i32| {
         let mut found = None;
