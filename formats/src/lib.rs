@@ -61,7 +61,8 @@ impl FormatError {
     }
 }
 
-pub(crate) fn read_text(path: &Path) -> Result<String, FormatError> {
+/// The text of the file at `path`, or an error naming it.
+pub fn read_text(path: &Path) -> Result<String, FormatError> {
     std::fs::read_to_string(path)
         .map_err(|e| FormatError::new(path, None, format!("cannot read: {e}")))
 }

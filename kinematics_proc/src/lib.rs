@@ -15,6 +15,8 @@
 //! assert_eq!(s.q, vec![0.0, 1.0]);
 //! ```
 
+pub mod stage;
+
 pub use formats::plan::PlannedPose;
 use geometry::{Arm, Role};
 use messages::Phase;

@@ -2,16 +2,14 @@
 //! states with the end-effector model's position. For the simulated robot it
 //! is the arm's driver; a real robot would read its encoders here.
 
-use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::Parser;
 use kinematics_proc::{Motion, Timing, random_plan};
-use messages::topics::{self, Topic};
-use messages::{Bus, JointState, MAX_JOINTS, Phase, Role, now_ns};
+use messages::MAX_JOINTS;
 
 /// Run a pose plan and publish the arm's joint states.
 #[derive(Debug, Parser)]
@@ -75,59 +73,14 @@ fn run(args: Args) -> Result<()> {
         },
         home,
     );
-    let bus = Bus::new(&args.prefix, "kinematics_proc")?;
-    let publisher = bus.publisher::<topics::JointState>()?;
-    let waited = Instant::now();
-    while bus.subscriber_count(topics::JointState::ID)? < args.wait_subscribers {
-        if waited.elapsed() > Duration::from_secs(30) {
-            bail!(
-                "{} subscribers on the joint states did not appear within 30 s",
-                args.wait_subscribers
-            );
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    tracing::info!(
-        poses = motion.plan().len(),
-        duration_s = motion.duration_ns() as f64 * 1e-9,
-        "running the pose plan"
-    );
-    let start = now_ns();
-    let mut seq = 0u64;
-    bus.wake()?.run(
-        &[],
-        Some(Duration::from_secs_f64(1.0 / args.rate_hz)),
-        || -> Result<_> {
-            let stamp = now_ns();
-            let state = motion.state_at(stamp - start);
-            let planned = motion
-                .plan()
-                .get(state.index.min(motion.plan().len().saturating_sub(1)));
-            let mut msg = JointState {
-                seq,
-                stamp_ns: stamp,
-                pose: planned.map_or(0, |p| p.pose),
-                phase: state.phase as u32,
-                role: planned.map_or(Role::Train, |p| p.role) as u32,
-                dof: state.q.len() as u32,
-                ..JointState::default()
-            };
-            msg.q[..state.q.len()].copy_from_slice(&state.q);
-            msg.model_point = arm
-                .end_effector(&state.q, &[])
-                .context("forward kinematics")?
-                .into();
-            seq += 1;
-            let _span = tracing::trace_span!("kinematics_step", seq).entered();
-            publisher.send(msg).context("publishing joint states")?;
-            Ok(if state.phase == Phase::Done {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            })
-        },
+    let states = kinematics_proc::stage::drive(
+        &args.prefix,
+        &arm,
+        &motion,
+        Duration::from_secs_f64(1.0 / args.rate_hz),
+        args.wait_subscribers,
     )?;
-    tracing::info!(states = seq, "pose plan done");
+    tracing::info!(states, "pose plan done");
     Ok(())
 }
 

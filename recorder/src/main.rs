@@ -1,12 +1,11 @@
 //! `recorder`: records every topic of a running pipeline into one MCAP file
 //! until Ctrl-C or SIGTERM; see the crate docs and the README.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Parser;
 use recorder::writer::{Compression, WriterOptions};
 use recorder::{RecordOptions, record};
@@ -70,72 +69,30 @@ fn run(args: Args) -> Result<()> {
             args.out.display()
         );
     }
-    let mut metadata = Vec::new();
-    let mut run_meta: BTreeMap<String, String> = args.meta.iter().cloned().collect();
-    run_meta.insert("prefix".into(), args.prefix.clone());
-    run_meta.insert("recorder_version".into(), env!("CARGO_PKG_VERSION").into());
-    run_meta.insert(
-        "log_time".into(),
-        "message stamp, CLOCK_MONOTONIC ns".into(),
-    );
-    metadata.push(("run".to_string(), run_meta));
-    let layouts = recorder::channels::TopicId::ALL
-        .iter()
-        .map(|t| {
-            (
-                t.name().to_string(),
-                format!("{} ({} bytes)", t.layout().type_name, t.layout().size),
-            )
-        })
-        .collect();
-    metadata.push(("layouts".to_string(), layouts));
-    let mut attachments = Vec::new();
-    let rig = match &args.rig {
-        Some(path) => {
-            let rig = formats::rig::read(path)?;
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("{}: cannot read", path.display()))?;
-            metadata.push((
-                "rig".to_string(),
-                BTreeMap::from([("toml".to_string(), text)]),
-            ));
-            attachments.push(("rig.toml".to_string(), path.clone()));
-            Some(rig)
-        }
-        None => None,
+    let mut writer = WriterOptions {
+        compression: args.compression,
+        flush_every: Duration::from_millis(args.flush_ms.max(1)),
+        frame_queue: args.frame_queue,
+        view_images: !args.no_view_images,
+        ..Default::default()
     };
+    writer.describe_run(&args.prefix, args.meta);
+    let rig = args
+        .rig
+        .as_deref()
+        .map(|path| writer.attach_rig(path))
+        .transpose()?;
     for path in &args.attach {
-        let name = path.file_name().map_or_else(
-            || path.display().to_string(),
-            |n| n.to_string_lossy().into_owned(),
-        );
-        attachments.push((name, path.clone()));
+        writer.attach(path);
     }
     let options = RecordOptions {
-        writer: WriterOptions {
-            compression: args.compression,
-            flush_every: Duration::from_millis(args.flush_ms.max(1)),
-            frame_queue: args.frame_queue,
-            view_images: !args.no_view_images,
-            metadata,
-            attachments,
-            ..Default::default()
-        },
+        writer,
         rig,
         live_view: args.live_view.map(|p| ("127.0.0.1".to_string(), p)),
         drop_frames: !args.no_drop,
     };
     let summary = record(&args.prefix, &args.out, options)?;
-    let mut stats = messages::stats::StageStats::new("recorder");
-    stats.count("frames_missed", summary.frames_missed);
-    stats.count(
-        "frames_dropped_queue_full",
-        summary.frames_dropped_queue_full,
-    );
-    for (topic, n) in &summary.messages {
-        stats.count(&format!("{topic}_written"), *n);
-    }
-    stats.finish();
+    summary.write_stats();
     tracing::info!(
         file = %summary.path.display(),
         bytes = summary.file_bytes,

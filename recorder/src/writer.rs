@@ -75,6 +75,54 @@ impl Default for WriterOptions {
     }
 }
 
+impl WriterOptions {
+    /// Adds the `run` metadata record (the prefix, this recorder's version,
+    /// what log time means, and `extra` KEY=VALUE entries) and the
+    /// `layouts` record (every topic's layout, from the topic table).
+    pub fn describe_run(&mut self, prefix: &str, extra: Vec<(String, String)>) {
+        let mut run: BTreeMap<String, String> = extra.into_iter().collect();
+        run.insert("prefix".into(), prefix.into());
+        run.insert("recorder_version".into(), env!("CARGO_PKG_VERSION").into());
+        run.insert(
+            "log_time".into(),
+            "message stamp, CLOCK_MONOTONIC ns".into(),
+        );
+        self.metadata.push(("run".into(), run));
+        let layouts = TopicId::ALL
+            .iter()
+            .map(|t| {
+                let layout = t.layout();
+                (
+                    t.name().to_string(),
+                    format!("{} ({} bytes)", layout.type_name, layout.size),
+                )
+            })
+            .collect();
+        self.metadata.push(("layouts".into(), layouts));
+    }
+
+    /// Reads the rig at `path`, stores its text as the `rig` metadata
+    /// record and the file as the attachment `rig.toml`, and returns it.
+    pub fn attach_rig(&mut self, path: &Path) -> Result<geometry::Rig, formats::FormatError> {
+        let rig = formats::rig::read(path)?;
+        let text = formats::read_text(path)?;
+        self.metadata
+            .push(("rig".into(), BTreeMap::from([("toml".into(), text)])));
+        self.attachments
+            .push(("rig.toml".into(), path.to_path_buf()));
+        Ok(rig)
+    }
+
+    /// Attaches the file at `path` under its file name.
+    pub fn attach(&mut self, path: &Path) {
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        self.attachments.push((name, path.to_path_buf()));
+    }
+}
+
 /// One message on its way to the writer: the exact bytes received.
 #[derive(Debug)]
 pub struct Entry {
@@ -167,6 +215,20 @@ pub enum WriterError {
     /// The writer thread panicked.
     #[error("the writer thread panicked")]
     Panicked,
+}
+
+impl RecordingSummary {
+    /// Writes the recorder's counters where the launcher collects every
+    /// stage's (see [`messages::stats`]).
+    pub fn write_stats(&self) {
+        let mut stats = messages::stats::StageStats::new("recorder");
+        stats.count("frames_missed", self.frames_missed);
+        stats.count("frames_dropped_queue_full", self.frames_dropped_queue_full);
+        for (topic, n) in &self.messages {
+            stats.count(&format!("{topic}_written"), *n);
+        }
+        stats.finish();
+    }
 }
 
 /// The writer thread has stopped (its error comes from [`RecorderHandle::finish`]).
