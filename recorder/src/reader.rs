@@ -263,6 +263,18 @@ impl Recording {
         self.visit(f, |_, _| {}, |_| {}, None)
     }
 
+    /// Every lossless message, as its bytes, per topic in file order: what
+    /// two recordings are compared by.
+    pub fn lossless_by_topic(&self) -> Result<BTreeMap<TopicId, Vec<Vec<u8>>>, ReadError> {
+        let mut out: BTreeMap<TopicId, Vec<Vec<u8>>> = BTreeMap::new();
+        self.for_each(|_, m| {
+            out.entry(m.topic()).or_default().push(m.to_bytes());
+            Ok::<_, String>(true)
+        })
+        .map_err(|message| ReadError::new(&self.path, message))?;
+        Ok(out)
+    }
+
     /// Calls `f` with the topic, log time and bytes of every message of
     /// every channel (viewing channels too), in file order, up to the end of
     /// the readable part.

@@ -82,20 +82,16 @@ fn write(path: &Path, n: u64, compression: Compression) {
 }
 
 fn read_all(recording: &Recording) -> BTreeMap<TopicId, Vec<Vec<u8>>> {
-    let mut out: BTreeMap<TopicId, Vec<Vec<u8>>> = BTreeMap::new();
-    recording
-        .for_each(|_, m| {
-            assert!(
-                matches!(
-                    m.topic(),
-                    TopicId::Frames | TopicId::JointState | TopicId::Detections
-                ),
-                "unexpected {m:?}"
-            );
-            out.entry(m.topic()).or_default().push(m.to_bytes());
-            Ok::<_, String>(true)
-        })
-        .unwrap();
+    let out = recording.lossless_by_topic().unwrap();
+    for topic in out.keys() {
+        assert!(
+            matches!(
+                topic,
+                TopicId::Frames | TopicId::JointState | TopicId::Detections
+            ),
+            "unexpected {topic:?}"
+        );
+    }
     out
 }
 

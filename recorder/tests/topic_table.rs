@@ -78,15 +78,7 @@ fn record(capture: &Capture, path: &Path, expected: usize) {
 }
 
 fn lossless(path: &Path) -> BTreeMap<TopicId, Vec<Vec<u8>>> {
-    let mut out: BTreeMap<TopicId, Vec<Vec<u8>>> = BTreeMap::new();
-    Recording::open(path)
-        .unwrap()
-        .for_each(|_, m| {
-            out.entry(m.topic()).or_default().push(m.to_bytes());
-            Ok::<_, String>(true)
-        })
-        .unwrap();
-    out
+    Recording::open(path).unwrap().lossless_by_topic().unwrap()
 }
 
 #[test]

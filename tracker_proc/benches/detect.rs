@@ -1,16 +1,19 @@
 //! Detection time per stereo frame: our pass (normal and mirror-reversed
 //! markers, one dictionary) against a plain OpenCV pass with the stock
-//! dictionary, on the same rendered frames in the same run.
+//! dictionary, on the same rendered frames in the same run; and the
+//! tracker stage's whole step (header checks, stamp order, `Mat` views over
+//! the frame as laid out in shared memory, both images).
 //! Run: `cargo bench -p tracker_proc --bench detect`.
 
 use camera_proc::render::Renderer;
 use criterion::{Criterion, criterion_group, criterion_main};
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
 use geometry::sim::{Facing, SimWorld};
+use messages::{Encoding, FrameHeader};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use std::hint::black_box;
-use tracker_proc::Detector;
+use tracker_proc::{Detector, Tracked, Tracker};
 
 fn frames() -> Vec<[Mat; 2]> {
     let data = generate(
@@ -66,6 +69,31 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    // The whole step on the same frames, each as one stereo payload.
+    let payloads: Vec<Vec<u8>> = frames
+        .iter()
+        .map(|[l, r]| [l.data_bytes().unwrap(), r.data_bytes().unwrap()].concat())
+        .collect();
+    let mut tracker = Tracker::new(true).unwrap();
+    let mut seq = 0u64;
+    group.bench_function("ours: the whole tracker step", |b| {
+        b.iter(|| {
+            let header = FrameHeader {
+                seq,
+                stamp_ns: seq as i64 + 1,
+                published_ns: 0,
+                width: 640,
+                height: 480,
+                stride: 640,
+                encoding: Encoding::Mono8 as u32,
+            };
+            let payload = &payloads[seq as usize % payloads.len()];
+            seq += 1;
+            let tracked = tracker.step(&header, payload).unwrap();
+            assert!(matches!(tracked, Tracked::Detections(_)));
+            black_box(tracked)
+        })
+    });
     group.finish();
 }
 

@@ -14,15 +14,7 @@ use super::{live_run, wait_for_line};
 
 /// Every lossless message of a recording, per topic, as bytes.
 fn lossless(path: &Path) -> BTreeMap<TopicId, Vec<Vec<u8>>> {
-    let recording = Recording::open(path).unwrap();
-    let mut out: BTreeMap<TopicId, Vec<Vec<u8>>> = BTreeMap::new();
-    recording
-        .for_each(|_, m| {
-            out.entry(m.topic()).or_default().push(m.to_bytes());
-            Ok::<_, String>(true)
-        })
-        .unwrap();
-    out
+    Recording::open(path).unwrap().lossless_by_topic().unwrap()
 }
 
 fn recording_a() -> PathBuf {
