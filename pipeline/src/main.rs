@@ -22,7 +22,7 @@ use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::Parser;
 use mirror_proc::calibrate::Method;
 use mirror_proc::experiment::PAPER_FIGURES;
@@ -60,7 +60,8 @@ struct Args {
     #[arg(long)]
     no_record: bool,
     /// Serve the viewing channels live to Foxglove on this localhost port
-    /// (ws://127.0.0.1:PORT) while the pipeline runs.
+    /// (ws://127.0.0.1:PORT) while the pipeline runs (the recorder serves
+    /// them: not with --no-record).
     #[arg(long)]
     live_view: Option<u16>,
     /// What to print at the end: the tables, or the whole report as JSON.
@@ -82,6 +83,9 @@ enum ReportFormat {
 }
 
 fn run(args: Args) -> Result<()> {
+    if args.no_record && args.live_view.is_some() {
+        bail!("--live-view is served by the recorder: it cannot be used with --no-record");
+    }
     let overrides = Overrides {
         mirrors: args.mirrors,
         train_poses: args.poses,

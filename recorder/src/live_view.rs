@@ -1,21 +1,62 @@
 //! The live view: the viewing channels served over the Foxglove WebSocket
 //! protocol (the `foxglove` SDK's server), so Foxglove can watch the robot
 //! calibrate while the pipeline runs.
+//!
+//! A viewer that connects mid-run gets the current state at once: the
+//! latest message of each state channel (camera calibrations, transforms,
+//! the calibrated mirror and cameras, located objects) is kept and sent to
+//! each client when it subscribes, from the server's subscribe callback.
+//! Streams (images, detections, predictions) only flow from then on.
 
 use std::collections::HashMap;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
-use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, WebSocketServer};
+use foxglove::websocket::{ChannelView, Client, ServerListener};
+use foxglove::{ChannelBuilder, ChannelId, Context, PartialMetadata, RawChannel, WebSocketServer};
 
 use crate::view::{ViewMessage, ViewTopic};
 
 /// A running WebSocket server with one channel per viewing topic.
 pub struct LiveView {
-    channels: HashMap<ViewTopic, Arc<RawChannel>>,
+    state: Arc<State>,
     server: Option<foxglove::WebSocketServerHandle>,
     port: u16,
     // The server holds the context weakly: it must live as long as the view.
     _context: Arc<Context>,
+}
+
+/// The channels, and the latest message of each state channel.
+struct State {
+    channels: HashMap<ViewTopic, Arc<RawChannel>>,
+    by_id: HashMap<ChannelId, ViewTopic>,
+    latest: Mutex<HashMap<ViewTopic, ViewMessage>>,
+}
+
+impl State {
+    fn send(&self, message: &ViewMessage, client: Option<&Client>) {
+        if let Some(channel) = self.channels.get(&message.topic) {
+            channel.log_with_meta_to_sink(
+                &message.data,
+                PartialMetadata {
+                    log_time: Some(message.log_time),
+                },
+                client.and_then(Client::sink_id),
+            );
+        }
+    }
+}
+
+impl ServerListener for State {
+    /// A late joiner gets the channel's current state at once.
+    fn on_subscribe(&self, client: Client, channel: ChannelView<'_>) {
+        let Some(topic) = self.by_id.get(&channel.id()) else {
+            return;
+        };
+        let latest = self.latest.lock().ok().and_then(|l| l.get(topic).cloned());
+        if let Some(message) = latest {
+            self.send(&message, Some(&client));
+        }
+    }
 }
 
 impl LiveView {
@@ -23,6 +64,7 @@ impl LiveView {
     pub fn start(host: &str, port: u16) -> Result<Self, String> {
         let context = Context::new();
         let mut channels = HashMap::new();
+        let mut by_id = HashMap::new();
         for v in ViewTopic::ALL {
             let channel = ChannelBuilder::new(v.name())
                 .message_encoding(ViewTopic::message_encoding())
@@ -30,16 +72,23 @@ impl LiveView {
                 .context(&context)
                 .build_raw()
                 .map_err(|e| format!("live view channel {}: {e}", v.name()))?;
+            by_id.insert(channel.id(), v);
             channels.insert(v, channel);
         }
+        let state = Arc::new(State {
+            channels,
+            by_id,
+            latest: Mutex::new(HashMap::new()),
+        });
         let server = WebSocketServer::new()
             .name("mirror pipeline")
             .bind(host, port)
             .context(&context)
+            .listener(state.clone())
             .start_blocking()
             .map_err(|e| format!("live view on {host}:{port}: {e}"))?;
         Ok(Self {
-            channels,
+            state,
             port: server.port(),
             server: Some(server),
             _context: context,
@@ -51,16 +100,15 @@ impl LiveView {
         self.port
     }
 
-    /// Sends one viewing message to the connected clients.
+    /// Sends one viewing message to the connected clients, and keeps it for
+    /// later ones if its channel carries state.
     pub fn log(&self, message: &ViewMessage) {
-        if let Some(channel) = self.channels.get(&message.topic) {
-            channel.log_with_meta(
-                &message.data,
-                PartialMetadata {
-                    log_time: Some(message.log_time),
-                },
-            );
+        if message.topic.is_state()
+            && let Ok(mut latest) = self.state.latest.lock()
+        {
+            latest.insert(message.topic, message.clone());
         }
+        self.state.send(message, None);
     }
 }
 

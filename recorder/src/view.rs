@@ -90,6 +90,19 @@ impl ViewTopic {
         .expect("Foxglove's schema types carry their schema")
     }
 
+    /// Whether the channel carries state (its latest message is what holds
+    /// now, so a viewer joining late needs it) rather than a stream.
+    pub fn is_state(self) -> bool {
+        matches!(
+            self,
+            ViewTopic::CameraInfo(_)
+                | ViewTopic::Transforms
+                | ViewTopic::MirrorTransforms
+                | ViewTopic::Scene
+                | ViewTopic::MirrorScene
+        )
+    }
+
     /// The message encoding (`protobuf`).
     pub fn message_encoding() -> String {
         RawImage::get_message_encoding()

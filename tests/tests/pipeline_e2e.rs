@@ -210,3 +210,25 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
         processes.len()
     );
 }
+
+/// The live view is the recorder's: asking for it without the recorder is
+/// refused at once, in one line, before any stage starts.
+#[test]
+fn the_live_view_without_the_recorder_is_refused_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
+    let output = Command::new(stage_binaries().join("pipeline"))
+        .args(["--config", config.to_str().unwrap()])
+        .args(["--out", dir.path().to_str().unwrap()])
+        .args(["--no-record", "--live-view", "0"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.starts_with("pipeline: error: --live-view") && stderr.contains("--no-record"),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("mirror0").exists(), "a stage started");
+}

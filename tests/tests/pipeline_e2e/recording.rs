@@ -449,6 +449,43 @@ fn the_live_view_serves_foxglove_clients_while_recording() {
     eprintln!("{text}");
 }
 
+/// A viewer that connects once everything has been published (the replay
+/// has ended, nothing flows) still gets the mirror, the mirror cameras and
+/// the camera calibrations at once.
+#[test]
+fn a_viewer_joining_after_the_calibration_gets_the_current_state_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let prefix = unique_prefix("late_joiner");
+    let mut replay = start_replay(dir.path(), &prefix, "all", "lockstep", "1");
+    let recorder_log = dir.path().join("recorder.log");
+    let rig = live_run().out.join("mirror0/rig.toml");
+    let mut recorder = spawn(
+        "recorder",
+        &[
+            "--prefix",
+            &prefix,
+            "--out",
+            dir.path().join("late.mcap").to_str().unwrap(),
+            "--rig",
+            rig.to_str().unwrap(),
+            "--no-view-images",
+            "--live-view",
+            "0",
+        ],
+        &recorder_log,
+    );
+    assert!(wait_exit(&mut replay.0, Duration::from_secs(120), "replay").success());
+    wait_for_line(&recorder_log, "ws://127.0.0.1:", Duration::from_secs(10));
+    let log = std::fs::read_to_string(&recorder_log).unwrap();
+    let at = log.find("ws://127.0.0.1:").unwrap() + "ws://127.0.0.1:".len();
+    let port: String = log[at..].chars().take_while(char::is_ascii_digit).collect();
+    let (ok, text) = run_python("live_view_late_joiner.py", &[&port]);
+    interrupt(&mut recorder.0);
+    assert!(wait_exit(&mut recorder.0, Duration::from_secs(30), "recorder").success());
+    assert!(ok, "{text}");
+    eprintln!("{text}");
+}
+
 #[test]
 fn a_full_disk_stops_the_recorder_with_one_line_and_a_readable_file_while_stages_go_on() {
     let dir = tempfile::tempdir().unwrap();
