@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
 # Installs what the workspace needs on a fresh Debian 12 machine: OpenCV 4.6
-# with the contrib aruco module, clang for the opencv crate's bindings, and
-# Python with venv for the tests' independent MCAP reader.
+# with the contrib aruco module, clang for the opencv crate's bindings,
+# Python with venv for the tests' independent MCAP reader, and Node.js with
+# npm for the tests' Foxglove client (unless a Node.js is already there).
 # Does nothing when everything is already there.
 set -euo pipefail
 
 packages=(pkg-config clang libclang-dev libopencv-dev libopencv-contrib-dev python3 python3-venv)
+# A Node.js installed otherwise (NodeSource, nvm) brings its own npm; Debian's would conflict.
+command -v npm >/dev/null || packages+=(nodejs npm)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -10,6 +10,11 @@ if [ ! -x target/pyenv/bin/python ]; then
 fi
 target/pyenv/bin/pip install --quiet --disable-pip-version-check \
     "mcap==1.6.*" "foxglove-schemas-protobuf==0.4.*" "websockets==15.*"
+# The official Foxglove WebSocket client library, for the live view's tests.
+if [ ! -d target/node/node_modules/@foxglove/ws-protocol ]; then
+    npm install --prefix target/node --no-audit --no-fund --silent \
+        "@foxglove/ws-protocol@0.8" "ws@8"
+fi
 
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets -- -D warnings

@@ -289,6 +289,28 @@ fn run_python(script: &str, args: &[&str]) -> (bool, String) {
     (output.status.success(), text)
 }
 
+/// Runs `tests/node/<script>` with `args` on the npm packages that
+/// `scripts/test.sh` installs into `target/node`: exit code and output.
+fn run_node(script: &str, args: &[&str]) -> (Option<i32>, String) {
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let modules = here.join("../target/node/node_modules");
+    assert!(
+        modules.join("@foxglove/ws-protocol").exists(),
+        "{} is missing: run scripts/test.sh once (it installs the npm `@foxglove/ws-protocol` \
+         client there)",
+        modules.display()
+    );
+    let output = Command::new("node")
+        .arg(here.join("node").join(script))
+        .args(args)
+        .env("NODE_PATH", &modules)
+        .output()
+        .expect("node runs (scripts/setup.sh installs it)");
+    let text = String::from_utf8_lossy(&output.stdout).to_string()
+        + &String::from_utf8_lossy(&output.stderr);
+    (output.status.code(), text)
+}
+
 #[test]
 fn an_independent_reader_sees_every_published_message_and_the_foxglove_schemas_decode() {
     let out = &live_run().out;
@@ -441,12 +463,22 @@ fn the_live_view_serves_foxglove_clients_while_recording() {
     let at = log.find("ws://127.0.0.1:").unwrap() + "ws://127.0.0.1:".len();
     let port: String = log[at..].chars().take_while(char::is_ascii_digit).collect();
     let (ok, text) = run_python("live_view_client.py", &[&port]);
+    // The official npm client library: it works offering the SDK's
+    // subprotocol, and the older protocol name is refused by the SDK's
+    // handshake (the README says which viewers connect).
+    let (sdk_code, sdk_text) = run_node("live_view_client.js", &[&port, "foxglove.sdk.v1"]);
+    let (old_code, old_text) = run_node("live_view_client.js", &[&port, "foxglove.websocket.v1"]);
     interrupt(&mut replay.0);
     wait_exit(&mut replay.0, Duration::from_secs(20), "replay");
     interrupt(&mut recorder.0);
     assert!(wait_exit(&mut recorder.0, Duration::from_secs(30), "recorder").success());
     assert!(ok, "{text}");
     eprintln!("{text}");
+    assert_eq!(sdk_code, Some(0), "{sdk_text}");
+    assert!(sdk_text.contains("\"/mirror/tf\""), "{sdk_text}");
+    eprintln!("npm client: {sdk_text}");
+    assert_eq!(old_code, Some(3), "{old_text}");
+    assert!(old_text.contains("\"refused\":400"), "{old_text}");
 }
 
 /// A viewer that connects once everything has been published (the replay
