@@ -6,11 +6,10 @@ and decodes what arrives with the official Foxglove protobuf schemas.
 Usage: live_view_client.py PORT
 """
 import asyncio
-import json
-import struct
 import sys
 
 import websockets
+from foxglove_ws import message_data, subscribe
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 
@@ -21,30 +20,19 @@ WANTED = {"/camera/left/detections": ImageAnnotations, "/tf": FrameTransforms}
 async def main():
     uri = f"ws://127.0.0.1:{port}"
     async with websockets.connect(uri, subprotocols=["foxglove.sdk.v1"]) as ws:
-        channels = {}
-        while not set(WANTED) <= set(channels):
-            msg = json.loads(await asyncio.wait_for(ws.recv(), 10))
-            if msg.get("op") == "advertise":
-                for c in msg["channels"]:
-                    channels[c["topic"]] = c
+        subs, channels = await subscribe(ws, list(WANTED))
         for topic, cls in WANTED.items():
             c = channels[topic]
             assert c["encoding"] == "protobuf", c
             assert c["schemaName"] == cls.DESCRIPTOR.full_name, c
-        subs = {i + 1: topic for i, topic in enumerate(WANTED)}
-        await ws.send(json.dumps({
-            "op": "subscribe",
-            "subscriptions": [{"id": i, "channelId": channels[t]["id"]} for i, t in subs.items()],
-        }))
         got = {t: 0 for t in WANTED}
         markers = 0
         while min(got.values()) < 5:
-            data = await asyncio.wait_for(ws.recv(), 10)
-            if isinstance(data, str) or data[0] != 1:  # 1 = message data
+            got_data = message_data(await asyncio.wait_for(ws.recv(), 10), subs)
+            if got_data is None:
                 continue
-            sub, _log_time = struct.unpack_from("<IQ", data, 1)
-            topic = subs[sub]
-            m = WANTED[topic].FromString(data[13:])
+            topic, payload = got_data
+            m = WANTED[topic].FromString(payload)
             got[topic] += 1
             if topic == "/camera/left/detections":
                 markers += len(m.points)

@@ -6,8 +6,6 @@ message within 1 s of subscribing, decoded with the official schemas.
 Usage: live_view_late_joiner.py PORT
 """
 import asyncio
-import json
-import struct
 import sys
 import time
 
@@ -15,6 +13,7 @@ import websockets
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from foxglove_ws import message_data, subscribe
 
 port = int(sys.argv[1])
 WANTED = {
@@ -28,17 +27,7 @@ WANTED = {
 async def main():
     uri = f"ws://127.0.0.1:{port}"
     async with websockets.connect(uri, subprotocols=["foxglove.sdk.v1"]) as ws:
-        channels = {}
-        while not set(WANTED) <= set(channels):
-            msg = json.loads(await asyncio.wait_for(ws.recv(), 10))
-            if msg.get("op") == "advertise":
-                for c in msg["channels"]:
-                    channels[c["topic"]] = c
-        subs = {i + 1: topic for i, topic in enumerate(WANTED)}
-        await ws.send(json.dumps({
-            "op": "subscribe",
-            "subscriptions": [{"id": i, "channelId": channels[t]["id"]} for i, t in subs.items()],
-        }))
+        subs, _channels = await subscribe(ws, list(WANTED))
         subscribed = time.monotonic()
         got = {}
         while set(got) != set(WANTED):
@@ -49,11 +38,11 @@ async def main():
                 data = await asyncio.wait_for(ws.recv(), left)
             except asyncio.TimeoutError:
                 break
-            if isinstance(data, str) or data[0] != 1:  # 1 = message data
+            got_data = message_data(data, subs)
+            if got_data is None:
                 continue
-            sub, _log_time = struct.unpack_from("<IQ", data, 1)
-            topic = subs[sub]
-            got.setdefault(topic, (WANTED[topic].FromString(data[13:]), time.monotonic() - subscribed))
+            topic, payload = got_data
+            got.setdefault(topic, (WANTED[topic].FromString(payload), time.monotonic() - subscribed))
         missing = set(WANTED) - set(got)
         assert not missing, f"nothing within 1 s on {sorted(missing)}"
         frames = [t.child_frame_id for t in got["/mirror/tf"][0].transforms]

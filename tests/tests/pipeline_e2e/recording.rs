@@ -437,31 +437,40 @@ fn replay_reads_a_truncated_file_partially_and_refuses_a_foreign_one() {
     );
 }
 
+/// Starts a recorder of `prefix` with the rig and a live view on a free
+/// port (and `extra` options); returns it and the port, once it serves.
+fn start_live_view(dir: &Path, prefix: &str, extra: &[&str]) -> (KillOnDrop, String) {
+    let log = dir.join("recorder.log");
+    let out = dir.join("live.mcap");
+    let rig = live_run().out.join("mirror0/rig.toml");
+    let mut args = vec![
+        "--prefix",
+        prefix,
+        "--out",
+        out.to_str().unwrap(),
+        "--rig",
+        rig.to_str().unwrap(),
+        "--live-view",
+        "0",
+    ];
+    args.extend(extra);
+    let recorder = spawn("recorder", &args, &log);
+    wait_for_line(&log, "ws://127.0.0.1:", Duration::from_secs(60));
+    let text = std::fs::read_to_string(&log).unwrap();
+    let at = text.find("ws://127.0.0.1:").unwrap() + "ws://127.0.0.1:".len();
+    let port = text[at..]
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect();
+    (recorder, port)
+}
+
 #[test]
 fn the_live_view_serves_foxglove_clients_while_recording() {
     let dir = tempfile::tempdir().unwrap();
     let prefix = unique_prefix("live_view");
     let mut replay = start_replay(dir.path(), &prefix, "all", "original", "1");
-    let recorder_log = dir.path().join("recorder.log");
-    let rig = live_run().out.join("mirror0/rig.toml");
-    let mut recorder = spawn(
-        "recorder",
-        &[
-            "--prefix",
-            &prefix,
-            "--out",
-            dir.path().join("live.mcap").to_str().unwrap(),
-            "--rig",
-            rig.to_str().unwrap(),
-            "--live-view",
-            "0",
-        ],
-        &recorder_log,
-    );
-    wait_for_line(&recorder_log, "ws://127.0.0.1:", Duration::from_secs(60));
-    let log = std::fs::read_to_string(&recorder_log).unwrap();
-    let at = log.find("ws://127.0.0.1:").unwrap() + "ws://127.0.0.1:".len();
-    let port: String = log[at..].chars().take_while(char::is_ascii_digit).collect();
+    let (mut recorder, port) = start_live_view(dir.path(), &prefix, &[]);
     let (ok, text) = run_python("live_view_client.py", &[&port]);
     // The official npm client library: it works offering the SDK's
     // subprotocol, and the older protocol name is refused by the SDK's
@@ -489,28 +498,8 @@ fn a_viewer_joining_after_the_calibration_gets_the_current_state_at_once() {
     let dir = tempfile::tempdir().unwrap();
     let prefix = unique_prefix("late_joiner");
     let mut replay = start_replay(dir.path(), &prefix, "all", "lockstep", "1");
-    let recorder_log = dir.path().join("recorder.log");
-    let rig = live_run().out.join("mirror0/rig.toml");
-    let mut recorder = spawn(
-        "recorder",
-        &[
-            "--prefix",
-            &prefix,
-            "--out",
-            dir.path().join("late.mcap").to_str().unwrap(),
-            "--rig",
-            rig.to_str().unwrap(),
-            "--no-view-images",
-            "--live-view",
-            "0",
-        ],
-        &recorder_log,
-    );
+    let (mut recorder, port) = start_live_view(dir.path(), &prefix, &["--no-view-images"]);
     assert!(wait_exit(&mut replay.0, Duration::from_secs(120), "replay").success());
-    wait_for_line(&recorder_log, "ws://127.0.0.1:", Duration::from_secs(10));
-    let log = std::fs::read_to_string(&recorder_log).unwrap();
-    let at = log.find("ws://127.0.0.1:").unwrap() + "ws://127.0.0.1:".len();
-    let port: String = log[at..].chars().take_while(char::is_ascii_digit).collect();
     let (ok, text) = run_python("live_view_late_joiner.py", &[&port]);
     interrupt(&mut recorder.0);
     assert!(wait_exit(&mut recorder.0, Duration::from_secs(30), "recorder").success());
