@@ -42,6 +42,11 @@ struct Args {
     /// Wait until this many subscribers listen to the joint states (at most 30 s).
     #[arg(long, default_value_t = 0)]
     wait_subscribers: usize,
+    /// Journal each pose the arm reaches here (MCAP); if the file exists,
+    /// take up the plan after the last pose it holds (a restarted driver
+    /// repeats no pose). Give a new path for a new run.
+    #[arg(long)]
+    journal: Option<PathBuf>,
 }
 
 fn run(args: Args) -> Result<()> {
@@ -64,7 +69,13 @@ fn run(args: Args) -> Result<()> {
         (None, Some(n)) => random_plan(&arm, n, args.seed),
         (None, None) => bail!("give --plan FILE or --random N"),
     };
-    let home: Vec<f64> = arm.joints.iter().map(|j| 0.5 * (j.min + j.max)).collect();
+    let mut plan = plan;
+    let mut home: Vec<f64> = arm.joints.iter().map(|j| 0.5 * (j.min + j.max)).collect();
+    let journal = args
+        .journal
+        .as_deref()
+        .map(|path| kinematics_proc::stage::resume(path, &mut plan, &mut home))
+        .transpose()?;
     let motion = Motion::new(
         plan,
         Timing {
@@ -79,6 +90,7 @@ fn run(args: Args) -> Result<()> {
         &motion,
         Duration::from_secs_f64(1.0 / args.rate_hz),
         args.wait_subscribers,
+        journal,
     )?;
     tracing::info!(states, "pose plan done");
     Ok(())

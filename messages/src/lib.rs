@@ -20,6 +20,7 @@
 //! ```
 
 mod bus;
+pub mod journal;
 pub mod stats;
 pub mod topics;
 pub mod trace;

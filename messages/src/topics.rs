@@ -60,6 +60,12 @@ pub trait TopicVisitor {
     fn frames<T: FrameTopic>(self) -> Self::Output;
 }
 
+/// Message encoding of the lossless MCAP channels (recordings, journals):
+/// the `#[repr(C)]` bytes, little-endian, as laid out in shared memory.
+pub const MESSAGE_ENCODING: &str = "x-mirror-repr-c";
+/// Schema encoding of the lossless MCAP channels: a JSON [`Layout`].
+pub const SCHEMA_ENCODING: &str = "x-mirror-layout+json";
+
 /// What a message's bytes are, as recorded and as checked between hosts.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Layout {
@@ -135,6 +141,11 @@ impl TopicId {
     /// The layout of its messages.
     pub fn layout(self) -> Layout {
         self.visit(LayoutOf)
+    }
+
+    /// The schema data of its lossless MCAP channel: the layout as JSON.
+    pub fn schema_data(self) -> Vec<u8> {
+        serde_json::to_vec(&self.layout()).expect("a layout serialises")
     }
 
     /// Whether it carries frames.

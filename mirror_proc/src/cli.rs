@@ -98,6 +98,12 @@ enum Command {
         /// Write the final report (JSON) here when the pose plan ends.
         #[arg(long)]
         report: Option<PathBuf>,
+        /// Journal every paired sample and calibration here (MCAP) before
+        /// publishing it; if the file exists, resume from it first (a
+        /// restarted stage loses nothing it had collected). Give a new path
+        /// for a new calibration.
+        #[arg(long)]
+        journal: Option<PathBuf>,
     },
     /// Run the paper's experiment on the simulated robot and print its table.
     Experiment {
@@ -274,6 +280,7 @@ fn run(cli: Cli) -> Result<()> {
             min_train,
             settle_ms,
             report,
+            journal,
         } => {
             let method: Method = method
                 .parse()
@@ -285,7 +292,7 @@ fn run(cli: Cli) -> Result<()> {
                 settle_margin_ns: settle_ms * 1_000_000,
                 ..Default::default()
             };
-            let result = crate::live_loop::run(&prefix, rig_model, config)?;
+            let result = crate::live_loop::run(&prefix, rig_model, config, journal.as_deref())?;
             let text = serde_json::to_string_pretty(&result)? + "\n";
             match report {
                 Some(path) => std::fs::write(&path, text)

@@ -123,6 +123,27 @@ pub struct LiveReport {
     /// Frame capture to publication of its result in this stage, ms (filled by the I/O loop).
     #[serde(default)]
     pub latency_ms: Option<Latency>,
+    /// What this run of the stage took back from its journal, if it
+    /// resumed one.
+    #[serde(default)]
+    pub recovered: Option<Recovery>,
+}
+
+/// What a restarted stage took back from its journal.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Recovery {
+    /// Samples taken back (training and test).
+    pub samples: usize,
+    /// Of which training samples.
+    pub train_samples: usize,
+    /// The calibration revision it resumed at (0: none yet).
+    pub revision: u64,
+    /// Whether the calibration computed again from the journaled samples
+    /// equals the journaled one, bit for bit.
+    pub calibration_reproduced: Option<bool>,
+    /// What was dropped from the end of the journal (a record torn by the
+    /// crash), if anything.
+    pub dropped: Option<String>,
 }
 
 /// Latency percentiles, ms.
@@ -184,6 +205,7 @@ pub struct Live {
     last_joint_seq: Option<u64>,
     last_detection_seq: Option<u64>,
     rejections: Rejections,
+    recovered: Option<Recovery>,
 }
 
 /// How far one input stream's stamps may run ahead of the other's before a
@@ -216,7 +238,80 @@ impl Live {
             last_joint_seq: None,
             last_detection_seq: None,
             rejections: Rejections::default(),
+            recovered: None,
         }
+    }
+
+    /// Resumes from what an earlier run of this stage journaled: its samples
+    /// in the order they were paired, and its calibrations. Poses already
+    /// sampled are not paired again. The last calibration is computed again
+    /// from the training samples it used (the solvers are deterministic, so
+    /// it comes out the same, bit for bit, which is checked); training
+    /// samples journaled after it are calibrated on as they would have been.
+    /// Returns what must be published: a calibration the crash prevented.
+    pub fn resume(
+        &mut self,
+        samples: &[MirrorSample],
+        calibrations: &[CalibrationMsg],
+        dropped: Option<String>,
+    ) -> Vec<Output> {
+        for s in samples {
+            self.poses_sampled.insert(s.pose);
+            self.counters.paired += 1;
+            if s.role == Role::Train as u32 {
+                self.train.push(*s);
+            } else {
+                self.tests.push(*s);
+            }
+        }
+        // The arm may still hold the last pose sampled before the crash: the
+        // rest of its dwell is not a repeated pose.
+        self.repeated_pose = samples.last().map(|s| s.pose);
+        let mut recovery = Recovery {
+            samples: samples.len(),
+            train_samples: self.train.len(),
+            dropped,
+            ..Default::default()
+        };
+        let mut out = Vec::new();
+        let last = calibrations.last();
+        if let Some(journaled) = last {
+            let used = (journaled.samples as usize).min(self.train.len());
+            let train: Vec<Sample> = self.train[..used]
+                .iter()
+                .map(MirrorSample::to_sample)
+                .collect();
+            self.revision = journaled.revision;
+            recovery.revision = journaled.revision;
+            match calibrate(&self.rig, &train, self.config.method) {
+                Ok(cal) => {
+                    let again = self.calibration_msg(&cal, journaled.stamp_ns, journaled.revision);
+                    recovery.calibration_reproduced = Some(again == *journaled);
+                    self.calibration = Some(cal);
+                }
+                Err(e) => {
+                    recovery.calibration_reproduced = Some(false);
+                    self.last_error = Some(e.to_string());
+                }
+            }
+        }
+        let calibrated = last.map_or(0, |c| c.samples as usize);
+        if self.train.len() > calibrated && self.train.len() >= self.config.min_train {
+            let stamp = self.train.last().map_or(0, |s| s.stamp_ns);
+            self.recalibrate(stamp, &mut out);
+        }
+        self.recovered = Some(recovery);
+        out
+    }
+
+    /// Training samples paired so far.
+    pub fn train_samples(&self) -> usize {
+        self.train.len()
+    }
+
+    /// The calibration revision published last (0: none yet).
+    pub fn revision(&self) -> u64 {
+        self.revision
     }
 
     /// Counts messages that never arrived, from sequence numbers.
@@ -458,26 +553,7 @@ impl Live {
             Ok(cal) => {
                 self.revision += 1;
                 self.last_error = None;
-                let mut msg = CalibrationMsg {
-                    stamp_ns,
-                    revision: self.revision,
-                    method: cal.method as u32,
-                    samples: cal.samples as u32,
-                    train_rms_px: cal.train_rms_px,
-                    ..Default::default()
-                };
-                if let Some(p) = cal.plane {
-                    msg.has_plane = 1;
-                    msg.plane = [p.normal.x, p.normal.y, p.normal.z, p.distance];
-                }
-                msg.cameras = [
-                    CameraPose::from_camera(&cal.mirror_cameras[0]),
-                    CameraPose::from_camera(&cal.mirror_cameras[1]),
-                ];
-                if let Some(o) = &cal.joint_offsets {
-                    msg.dof = o.len().min(MAX_JOINTS) as u32;
-                    msg.joint_offsets[..msg.dof as usize].copy_from_slice(&o[..msg.dof as usize]);
-                }
+                let msg = self.calibration_msg(&cal, stamp_ns, self.revision);
                 self.calibration = Some(cal);
                 out.push(Output::Calibration(msg));
             }
@@ -496,6 +572,31 @@ impl Live {
                 self.last_error = Some(why);
             }
         }
+    }
+
+    /// The message of calibration `cal`.
+    fn calibration_msg(&self, cal: &Calibration, stamp_ns: i64, revision: u64) -> CalibrationMsg {
+        let mut msg = CalibrationMsg {
+            stamp_ns,
+            revision,
+            method: cal.method as u32,
+            samples: cal.samples as u32,
+            train_rms_px: cal.train_rms_px,
+            ..Default::default()
+        };
+        if let Some(p) = cal.plane {
+            msg.has_plane = 1;
+            msg.plane = [p.normal.x, p.normal.y, p.normal.z, p.distance];
+        }
+        msg.cameras = [
+            CameraPose::from_camera(&cal.mirror_cameras[0]),
+            CameraPose::from_camera(&cal.mirror_cameras[1]),
+        ];
+        if let Some(o) = &cal.joint_offsets {
+            msg.dof = o.len().min(MAX_JOINTS) as u32;
+            msg.joint_offsets[..msg.dof as usize].copy_from_slice(&o[..msg.dof as usize]);
+        }
+        msg
     }
 
     fn predict(&self, sample: &MirrorSample, out: &mut Vec<Output>) {
@@ -589,6 +690,7 @@ impl Live {
             }),
             counters: self.counters.clone(),
             latency_ms: None,
+            recovered: self.recovered.clone(),
         }
     }
 }

@@ -1,79 +1,180 @@
-//! Moves messages between iceoryx2 and the pure [`crate::live::Live`] stage.
+//! Moves messages between iceoryx2 and the pure [`crate::live::Live`]
+//! stage, journaling what it must not lose before publishing it.
 
+use std::collections::VecDeque;
 use std::ops::ControlFlow;
+use std::path::Path;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use geometry::Rig;
-use messages::{Bus, topics};
+use messages::journal::Journal;
+use messages::stats::StageStats;
+use messages::topics::{self, Topic};
+use messages::{Bus, Publisher, now_ns};
 
 use crate::live::{Latency, Live, LiveConfig, LiveReport, Output};
-use messages::now_ns;
+
+/// The topics the stage journals: what a restart must not lose.
+pub const JOURNALED: [topics::TopicId; 2] = [topics::Samples::ID, topics::Calibration::ID];
+
+/// Where the stage's outputs go: the journal first (samples and
+/// calibrations), then the bus.
+struct Outputs {
+    journal: Option<Journal>,
+    samples: Publisher<topics::Samples>,
+    calibrations: Publisher<topics::Calibration>,
+    predictions: Publisher<topics::Predictions>,
+    located: Publisher<topics::Located>,
+    /// Frame capture (detection stamp) to the moment its sample is published.
+    sample_latency_ns: Vec<i64>,
+    /// When each recent frame entered the pipeline, by capture stamp: a
+    /// sample names its frame by stamp.
+    published_by_stamp: VecDeque<(i64, i64)>,
+}
+
+impl Outputs {
+    fn publish(&mut self, output: Output, stats: &mut StageStats) -> Result<()> {
+        match output {
+            Output::Sample(s) => {
+                if let Some(journal) = &mut self.journal {
+                    let began = now_ns();
+                    journal.append::<topics::Samples>(&s)?;
+                    stats.record("journal_append", now_ns() - began);
+                }
+                self.samples.send(s)?;
+                let latency = now_ns() - s.stamp_ns;
+                self.sample_latency_ns.push(latency);
+                stats.record("capture_to_sample", latency);
+                if let Some(&(_, published)) = self
+                    .published_by_stamp
+                    .iter()
+                    .find(|(t, _)| *t == s.stamp_ns)
+                {
+                    stats.record("frame_to_sample", now_ns() - published);
+                }
+            }
+            Output::Calibration(c) => {
+                tracing::info!(
+                    revision = c.revision,
+                    samples = c.samples,
+                    rms_px = c.train_rms_px,
+                    "calibration"
+                );
+                if let Some(journal) = &mut self.journal {
+                    journal.append::<topics::Calibration>(&c)?;
+                }
+                self.calibrations.send(c)?
+            }
+            Output::Prediction(p) => self.predictions.send(p)?,
+            Output::Located(l) => self.located.send(l)?,
+        }
+        Ok(())
+    }
+}
+
+/// Opens `path` and resumes `live` from what it holds; returns the journal
+/// and what must be published.
+fn resume(live: &mut Live, path: &Path) -> Result<(Journal, Vec<Output>)> {
+    let (journal, recovered) = Journal::open(path, &JOURNALED)?;
+    if let Some(why) = &recovered.dropped {
+        tracing::warn!(
+            "{}: dropped an incomplete record at its end ({why}); everything before it is kept",
+            path.display()
+        );
+    }
+    let samples: Vec<_> = recovered.messages::<topics::Samples>().collect();
+    let calibrations: Vec<_> = recovered.messages::<topics::Calibration>().collect();
+    let outputs = live.resume(&samples, &calibrations, recovered.dropped.clone());
+    if !samples.is_empty() || !calibrations.is_empty() {
+        let reproduced = live
+            .report()
+            .recovered
+            .and_then(|r| r.calibration_reproduced);
+        tracing::info!(
+            samples = samples.len(),
+            train = live.train_samples(),
+            revision = live.revision(),
+            ?reproduced,
+            "resumed from the journal {}",
+            path.display()
+        );
+    }
+    Ok((journal, outputs))
+}
 
 /// Runs the live stage on pipeline `prefix` until the pose plan ends (or a
-/// signal stops it); returns the final report.
-pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
+/// signal stops it); returns the final report. With `journal`, every
+/// sample and calibration is journaled there before it is published, and a
+/// journal left by an earlier run of the stage is resumed.
+pub fn run(
+    prefix: &str,
+    rig: Rig,
+    config: LiveConfig,
+    journal: Option<&Path>,
+) -> Result<LiveReport> {
+    let began = now_ns();
+    let mut live = Live::new(rig, config);
+    let (journal, pending) = match journal {
+        Some(path) => {
+            let (journal, pending) = resume(&mut live, path)
+                .with_context(|| format!("resuming from the journal {}", path.display()))?;
+            (Some(journal), pending)
+        }
+        None => (None, Vec::new()),
+    };
     let bus = Bus::new(prefix, "mirror_proc")?;
     let joints = bus.subscriber::<topics::JointState>()?;
     let detections = bus.subscriber::<topics::Detections>()?;
-    let samples = bus.publisher::<topics::Samples>()?;
-    let calibrations = bus.publisher::<topics::Calibration>()?;
-    let predictions = bus.publisher::<topics::Predictions>()?;
-    let located = bus.publisher::<topics::Located>()?;
-    let mut live = Live::new(rig, config);
-    // Frame capture (detection stamp) to the moment its sample is published.
-    let mut sample_latency_ns = Vec::new();
-    let mut stats = messages::stats::StageStats::new("mirror_proc");
-    // When each recent frame entered the pipeline, by capture stamp: a
-    // sample names its frame by stamp.
-    let mut published_by_stamp = std::collections::VecDeque::<(i64, i64)>::new();
+    let mut outputs = Outputs {
+        journal,
+        samples: bus.publisher::<topics::Samples>()?,
+        calibrations: bus.publisher::<topics::Calibration>()?,
+        predictions: bus.publisher::<topics::Predictions>()?,
+        located: bus.publisher::<topics::Located>()?,
+        sample_latency_ns: Vec::new(),
+        published_by_stamp: VecDeque::new(),
+    };
+    let mut stats = StageStats::new("mirror_proc");
+    if let Some(r) = live.report().recovered {
+        // From the start of this process to its state recovered and its
+        // ports open: when a restarted stage can pair again.
+        stats.record("start_to_resumed", now_ns() - began);
+        // Written at once, so the launcher's report shows this restart's
+        // recovery even if this process is killed in turn.
+        stats.count("recovered_samples", r.samples as u64);
+        stats.count("recovered_revision", r.revision);
+        stats.count("recovered_dropped_records", u64::from(r.dropped.is_some()));
+        stats.finish();
+    }
+    for o in pending {
+        outputs.publish(o, &mut stats)?;
+    }
     tracing::info!(prefix, "mirror stage running");
     bus.wake()?.run(
         &[joints.listener(), detections.listener()],
         None,
         || -> Result<_> {
-            let mut outputs = Vec::new();
+            let mut ready = Vec::new();
             let mut received_ns = Vec::new();
             let mut frames_published_ns = Vec::new();
             while let Some(js) = joints.receive()? {
-                outputs.extend(live.push_joint_state(js));
+                ready.extend(live.push_joint_state(js));
             }
             while let Some(d) = detections.receive()? {
                 received_ns.push(now_ns());
                 if d.frame_published_ns > 0 {
                     frames_published_ns.push(d.frame_published_ns);
-                    if published_by_stamp.len() == 256 {
-                        published_by_stamp.pop_front();
+                    let recent = &mut outputs.published_by_stamp;
+                    if recent.len() == 256 {
+                        recent.pop_front();
                     }
-                    published_by_stamp.push_back((d.stamp_ns, d.frame_published_ns));
+                    recent.push_back((d.stamp_ns, d.frame_published_ns));
                 }
                 let _span = tracing::trace_span!("mirror_step", seq = d.seq).entered();
-                outputs.extend(live.push_detections(d));
+                ready.extend(live.push_detections(d));
             }
-            for o in outputs {
-                match o {
-                    Output::Sample(s) => {
-                        samples.send(s)?;
-                        let latency = now_ns() - s.stamp_ns;
-                        sample_latency_ns.push(latency);
-                        stats.record("capture_to_sample", latency);
-                        if let Some(&(_, published)) =
-                            published_by_stamp.iter().find(|(t, _)| *t == s.stamp_ns)
-                        {
-                            stats.record("frame_to_sample", now_ns() - published);
-                        }
-                    }
-                    Output::Calibration(c) => {
-                        tracing::info!(
-                            revision = c.revision,
-                            samples = c.samples,
-                            rms_px = c.train_rms_px,
-                            "calibration"
-                        );
-                        calibrations.send(c)?
-                    }
-                    Output::Prediction(p) => predictions.send(p)?,
-                    Output::Located(l) => located.send(l)?,
-                }
+            for o in ready {
+                outputs.publish(o, &mut stats)?;
             }
             // Each detection from its arrival to the end of this wake's
             // publishing (the wait in the merge for the joint states to
@@ -102,7 +203,7 @@ pub fn run(prefix: &str, rig: Rig, config: LiveConfig) -> Result<LiveReport> {
     stats.count("source_restarts", report.counters.source_restarts);
     stats.count("poses_repeated", report.counters.poses_repeated);
     stats.finish();
-    report.latency_ms = Latency::of(&sample_latency_ns);
+    report.latency_ms = Latency::of(&outputs.sample_latency_ns);
     tracing::info!(
         train = report.train_samples,
         test = report.test_samples,

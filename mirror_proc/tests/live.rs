@@ -438,3 +438,106 @@ fn bad_geometry_is_reported_and_nothing_is_published() {
         "{why}"
     );
 }
+
+/// A stage killed at some point and resumed from what it had journaled
+/// (its samples and calibrations up to then) goes on as if nothing had
+/// happened: the calibration it recomputes is the journaled one, bit for
+/// bit, and its final calibration is the uninterrupted run's.
+#[test]
+fn a_stage_resumed_from_its_journal_ends_with_the_uninterrupted_calibration() {
+    let (joints, detections, _) = streams();
+    let order = by_stamp(&joints, &detections);
+    let (whole, live) = run(&order, &joints, &detections);
+    let last = |out: &[Output]| {
+        out.iter()
+            .rev()
+            .find_map(|o| match o {
+                Output::Calibration(c) => Some(*c),
+                _ => None,
+            })
+            .expect("a calibration")
+    };
+    let final_calibration = last(&whole);
+    let final_file = live.report().calibration;
+    let calibrations = |out: &[Output]| {
+        out.iter()
+            .filter(|o| matches!(o, Output::Calibration(_)))
+            .count()
+    };
+    // Crash points: after the third calibration, after the last training
+    // sample, and between a training sample and the calibration it caused
+    // (journaled the sample, not the calibration).
+    let third = (1..=order.len())
+        .find(|&m| calibrations(&run(&order[..m], &joints, &detections).0) == 3)
+        .unwrap();
+    let train_samples = |out: &[Output]| {
+        out.iter()
+            .filter(|o| matches!(o, Output::Sample(s) if s.role == Role::Train as u32))
+            .count()
+    };
+    let train = train_samples(&whole);
+    let last_train = (1..=order.len())
+        .find(|&m| train_samples(&run(&order[..m], &joints, &detections).0) == train)
+        .unwrap();
+    for (crash_after, drop_last_calibration) in [(third, false), (last_train, false), (third, true)]
+    {
+        let (before, _) = run(&order[..crash_after], &joints, &detections);
+        let mut journaled: Vec<Output> = before
+            .iter()
+            .filter(|o| matches!(o, Output::Sample(_) | Output::Calibration(_)))
+            .cloned()
+            .collect();
+        if drop_last_calibration {
+            assert!(matches!(journaled.pop(), Some(Output::Calibration(_))));
+        }
+        let samples: Vec<_> = journaled
+            .iter()
+            .filter_map(|o| match o {
+                Output::Sample(s) => Some(*s),
+                _ => None,
+            })
+            .collect();
+        let calibrations: Vec<_> = journaled
+            .iter()
+            .filter_map(|o| match o {
+                Output::Calibration(c) => Some(*c),
+                _ => None,
+            })
+            .collect();
+        let mut resumed = Live::new(nico_scene().rig, LiveConfig::default());
+        let pending = resumed.resume(&samples, &calibrations, None);
+        let recovery = resumed.report().recovered.unwrap();
+        assert_eq!(recovery.samples, samples.len());
+        assert_eq!(recovery.calibration_reproduced, Some(true));
+        if drop_last_calibration {
+            // The calibration the crash prevented is made and published again.
+            assert_eq!(pending, vec![Output::Calibration(last(&before))]);
+        } else {
+            assert!(pending.is_empty());
+        }
+        let mut after = pending;
+        let (mut j, mut d) = (
+            order[..crash_after].iter().filter(|t| **t).count(),
+            order[..crash_after].iter().filter(|t| !**t).count(),
+        );
+        for &take_joint in &order[crash_after..] {
+            if take_joint {
+                after.extend(resumed.push_joint_state(joints[j]));
+                j += 1;
+            } else {
+                after.extend(resumed.push_detections(detections[d]));
+                d += 1;
+            }
+        }
+        let end = if after.iter().any(|o| matches!(o, Output::Calibration(_))) {
+            last(&after)
+        } else {
+            *calibrations.last().unwrap()
+        };
+        assert_eq!(end, final_calibration, "crash after {crash_after}");
+        assert_eq!(resumed.report().calibration, final_file);
+        assert_eq!(resumed.report().train_samples, train);
+        // The dwell in progress at the crash is not a repeated pose.
+        assert_eq!(resumed.report().counters.poses_repeated, 0);
+    }
+}

@@ -129,15 +129,31 @@ fn run(args: Args) -> Result<()> {
     std::fs::write(&path, &text).with_context(|| format!("{}: cannot write", path.display()))?;
     if args.report == ReportFormat::Json {
         print!("{text}");
-        return Ok(());
+    } else {
+        print!("{}", report::table(&results, run.config.method));
+        print!("{}", report::latency_table(&results));
+        println!(
+            "report: {}  (per placement: {}/mirror<i>/{{report.json, recording.mcap, rig.toml, \
+             plan.csv, stages.log, journal.mcap, arm_journal.mcap}})",
+            path.display(),
+            args.out.display()
+        );
     }
-    print!("{}", report::table(&results, run.config.method));
-    print!("{}", report::latency_table(&results));
-    println!(
-        "report: {}  (per placement: {}/mirror<i>/{{report.json, recording.mcap, rig.toml, plan.csv, stages.log}})",
-        path.display(),
-        args.out.display()
-    );
+    // A run that ends without a calibration failed, whatever else it did.
+    let uncalibrated: Vec<String> = results
+        .iter()
+        .filter(|r| r.report.calibration.is_none())
+        .map(|r| {
+            format!(
+                "mirror {}: no calibration: {}",
+                r.mirror,
+                r.report.last_error.as_deref().unwrap_or("no reason given")
+            )
+        })
+        .collect();
+    if !uncalibrated.is_empty() {
+        bail!("{}", uncalibrated.join("; "));
+    }
     Ok(())
 }
 

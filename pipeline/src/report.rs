@@ -119,6 +119,7 @@ pub fn latency_table(results: &[PlacementResult]) -> String {
                             || k.contains("late")
                             || k.contains("restarts")
                             || k.contains("repeated")
+                            || k.contains("recovered")
                     })
                     .map(move |(k, v)| format!("{} {k} {v}", st.stage))
             })

@@ -95,6 +95,10 @@ impl Run {
         formats::plan::write(&plan_path, &plan)?;
         let report_path = dir.join("report.json");
         let recording = dir.join("recording.mcap");
+        // The mirror stage's and the arm driver's journals: a restart
+        // within this run resumes from them; a new run starts new ones.
+        let journal = dir.join("journal.mcap");
+        let arm_journal = dir.join("arm_journal.mcap");
         let launch = Launch {
             bin_dir: self.bin_dir.clone(),
             prefix: format!("{}_m{mirror}", self.prefix),
@@ -102,9 +106,15 @@ impl Run {
             trace_dir: self.trace.then(|| dir.join("trace")),
             stats_dir: dir.join("stats"),
         };
-        for stale in [&report_path, &launch.log, &launch.stats_dir]
-            .into_iter()
-            .chain(&launch.trace_dir)
+        for stale in [
+            &report_path,
+            &journal,
+            &arm_journal,
+            &launch.log,
+            &launch.stats_dir,
+        ]
+        .into_iter()
+        .chain(&launch.trace_dir)
         {
             clear(stale);
         }
@@ -136,6 +146,7 @@ impl Run {
                 method: config.method,
                 min_train: config.min_train,
                 report: report_path.clone(),
+                journal,
             },
             StageArgs::Tracker,
             StageArgs::Camera {
@@ -149,6 +160,7 @@ impl Run {
             move_ms: config.move_ms,
             dwell_ms: config.dwell_ms,
             wait_subscribers: subscribers_of(&consumers, TopicId::JointState),
+            journal: arm_journal,
         };
 
         let mut supervisor = Supervisor::new(&launch);
@@ -202,12 +214,6 @@ impl Run {
                 .with_context(|| format!("{}: missing", report_path.display()))?,
         )
         .with_context(|| format!("{}: unreadable", report_path.display()))?;
-        if report.calibration.is_none() {
-            eprintln!(
-                "mirror {mirror}: no calibration: {}",
-                report.last_error.as_deref().unwrap_or("no reason given")
-            );
-        }
         let truth = TruthErrors::of(&report, &data, &SimWorld::nico(mirror)?);
         Ok(PlacementResult {
             mirror,

@@ -51,6 +51,8 @@ pub enum StageArgs {
         min_train: usize,
         /// Where the final report goes.
         report: PathBuf,
+        /// Its journal: a restart resumes from it.
+        journal: PathBuf,
     },
     /// `tracker_proc run`: ArUco detection.
     Tracker,
@@ -73,6 +75,8 @@ pub enum StageArgs {
         dwell_ms: u64,
         /// Joint-state subscribers to wait for before moving.
         wait_subscribers: usize,
+        /// Its journal: a restart takes up the plan after the last pose reached.
+        journal: PathBuf,
     },
 }
 
@@ -135,11 +139,13 @@ impl StageArgs {
                 method,
                 min_train,
                 report,
+                journal,
             } => {
                 flag("rig", path(rig));
                 flag("method", method.to_string());
                 flag("min-train", min_train.to_string());
                 flag("report", path(report));
+                flag("journal", path(journal));
             }
             StageArgs::Tracker => {}
             StageArgs::Camera { mirror, fps } => {
@@ -152,12 +158,14 @@ impl StageArgs {
                 move_ms,
                 dwell_ms,
                 wait_subscribers,
+                journal,
             } => {
                 flag("rig", path(rig));
                 flag("plan", path(plan));
                 flag("move-ms", move_ms.to_string());
                 flag("dwell-ms", dwell_ms.to_string());
                 flag("wait-subscribers", wait_subscribers.to_string());
+                flag("journal", path(journal));
             }
         }
         argv
@@ -202,10 +210,12 @@ mod tests {
             method: Method::Joint,
             min_train: 8,
             report: "out/report.json".into(),
+            journal: "out/journal.mcap".into(),
         };
         assert_eq!(
             mirror.argv("p").join(" "),
-            "run --prefix p --rig r.toml --method joint --min-train 8 --report out/report.json"
+            "run --prefix p --rig r.toml --method joint --min-train 8 --report out/report.json \
+             --journal out/journal.mcap"
         );
         let camera = StageArgs::Camera {
             mirror: 2,

@@ -3,18 +3,7 @@
 //! schema that names the type and its layout so that a reader can refuse a
 //! layout it does not know.
 
-pub use messages::topics::{Layout, Message, TopicId};
-
-/// Message encoding of the lossless channels: the `#[repr(C)]` bytes,
-/// little-endian, as laid out in shared memory.
-pub const MESSAGE_ENCODING: &str = "x-mirror-repr-c";
-/// Schema encoding of the lossless channels: a JSON [`Layout`].
-pub const SCHEMA_ENCODING: &str = "x-mirror-layout+json";
-
-/// The schema data of `topic`'s channel: its layout as JSON.
-pub fn schema_data(topic: TopicId) -> Vec<u8> {
-    serde_json::to_vec(&topic.layout()).expect("a layout serialises")
-}
+pub use messages::topics::{Layout, MESSAGE_ENCODING, Message, SCHEMA_ENCODING, TopicId};
 
 /// Log time of a stamp: stamps before the clock's epoch (malformed) map to 0.
 pub fn log_time(stamp_ns: i64) -> u64 {
@@ -28,7 +17,7 @@ mod tests {
     #[test]
     fn every_schema_is_its_layout() {
         for t in TopicId::ALL {
-            let layout: Layout = serde_json::from_slice(&schema_data(t)).unwrap();
+            let layout: Layout = serde_json::from_slice(&t.schema_data()).unwrap();
             assert_eq!(layout, t.layout());
         }
     }

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, Sender, bounded};
 use mcap::records::MessageHeader;
 
-use crate::channels::{MESSAGE_ENCODING, Message, SCHEMA_ENCODING, TopicId, schema_data};
+use crate::channels::{MESSAGE_ENCODING, Message, SCHEMA_ENCODING, TopicId};
 use crate::live_view::LiveView;
 use crate::view::{ViewBuilder, ViewMessage, ViewTopic};
 
@@ -456,7 +456,7 @@ impl Mcap {
         let mut lossless = HashMap::new();
         for t in TopicId::ALL {
             let schema =
-                writer.add_schema(&t.layout().type_name, SCHEMA_ENCODING, &schema_data(t))?;
+                writer.add_schema(&t.layout().type_name, SCHEMA_ENCODING, &t.schema_data())?;
             let id = writer.add_channel(schema, t.name(), MESSAGE_ENCODING, &BTreeMap::new())?;
             lossless.insert(t, (id, 0));
         }

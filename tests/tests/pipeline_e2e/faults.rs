@@ -9,10 +9,12 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
+use messages::topics::TopicId;
 use messages::{
-    Bus, CameraMarkers, Encoding, FrameHeader, JointState, Marker, Phase, StereoDetections, now_ns,
-    topics,
+    Bus, CameraMarkers, Encoding, FrameHeader, JointState, Marker, MirrorSample, Phase, Role,
+    StereoDetections, now_ns, topics,
 };
+use mirror_proc::calibrate::Method;
 use serde_json::Value;
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 
@@ -26,6 +28,8 @@ struct Launcher {
     out: PathBuf,
     prefix: String,
     stderr: Vec<String>,
+    /// Poses paired, as the launcher last reported.
+    paired: usize,
 }
 
 impl Launcher {
@@ -70,26 +74,40 @@ impl Launcher {
             // The launcher's prefix for placement 0.
             prefix: format!("{prefix}_m0"),
             stderr: Vec::new(),
+            paired: 0,
         }
     }
 
     /// Waits until the launcher reports at least `n` poses paired.
     fn wait_paired(&mut self, n: usize) {
+        self.wait_progress(&format!("{n} poses paired"), |paired, _| paired >= n);
+    }
+
+    /// Waits until the launcher's progress line (poses paired, calibration
+    /// revision) satisfies `done`.
+    fn wait_progress(&mut self, what: &str, done: impl Fn(usize, u64) -> bool) {
         let deadline = Instant::now() + Duration::from_secs(120);
         loop {
             let line = self
                 .lines
                 .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-                .unwrap_or_else(|_| panic!("{n} poses never paired: {:?}", self.stderr));
-            // "mirror 0: 3/20 poses paired, calibration revision ..."
-            let paired = line
+                .unwrap_or_else(|_| panic!("never {what}: {:?}", self.stderr));
+            // "mirror 0: 3/20 poses paired, calibration revision 2 (train RMS ...)"
+            let progress = line
                 .strip_prefix("mirror 0: ")
                 .filter(|rest| rest.contains(" poses paired"))
-                .and_then(|rest| rest.split_once('/'))
-                .and_then(|(k, _)| k.parse::<usize>().ok());
+                .and_then(|rest| {
+                    let (paired, rest) = rest.split_once('/')?;
+                    let revision = rest.split("calibration revision ").nth(1)?;
+                    let revision = revision.split_whitespace().next()?;
+                    Some((paired.parse::<usize>().ok()?, revision.parse::<u64>().ok()?))
+                });
             self.stderr.push(line);
-            if paired.is_some_and(|k| k >= n) {
-                return;
+            if let Some((paired, revision)) = progress {
+                self.paired = paired;
+                if done(paired, revision) {
+                    return;
+                }
             }
         }
     }
@@ -164,10 +182,10 @@ fn stages_killed_mid_run_are_restarted_and_the_calibration_completes() {
     run.wait_paired(4);
     kill9("camera_proc", &prefix);
     run.wait_paired(6);
-    // The mirror stage loses its samples; the new one starts from here.
+    // The mirror stage resumes from its journal.
     kill9("mirror_proc", &prefix);
     run.wait_paired(8);
-    // The pose plan starts again from its first pose.
+    // The arm's driver takes up its plan after the last pose reached.
     kill9("kinematics_proc", &prefix);
     // And a tracker started twice.
     let log = std::fs::File::create(run.out.join("second_tracker.log")).unwrap();
@@ -197,12 +215,14 @@ fn stages_killed_mid_run_are_restarted_and_the_calibration_completes() {
     assert_calibrated(&placement);
     let live = &placement["report"];
     let c = &live["counters"];
-    // The restarted plan gave the new mirror stage the poses it missed.
     assert!(
         live["train_samples"].as_u64().unwrap() >= 10,
         "calibration poses: {live}"
     );
-    assert!(c["poses_repeated"].as_u64().unwrap() >= 1, "{c}");
+    assert_eq!(
+        c["poses_repeated"], 0,
+        "a resumed plan repeats no pose: {c}"
+    );
     assert!(c["source_restarts"].as_u64().unwrap() >= 1, "{c}");
     assert!(
         c["joint_states_missed"].as_u64().unwrap() > 0,
@@ -221,6 +241,161 @@ fn stages_killed_mid_run_are_restarted_and_the_calibration_completes() {
         live["test_samples"],
         placement["plane_angle_deg"]
     );
+}
+
+/// The mirror stage killed twice, after its third calibration and after the
+/// last calibration pose: each restart resumes from its journal. The final
+/// calibration is the one computed offline from the journaled samples, bit
+/// for bit, and every training sample the stage ever published (as the
+/// recording saw them) is in the journal and in the calibration.
+#[test]
+fn a_mirror_stage_killed_twice_resumes_from_its_journal_and_loses_nothing() {
+    let mut run = Launcher::start("journal", true);
+    let prefix = run.prefix.clone();
+    run.wait_progress("a third calibration", |_, revision| revision >= 3);
+    let paired = run.paired;
+    kill9("mirror_proc", &prefix);
+    let killed = Instant::now();
+    run.wait_paired(paired + 1);
+    let to_next_sample = killed.elapsed();
+    // The 12 calibration poses come first in the plan.
+    run.wait_paired(12);
+    kill9("mirror_proc", &prefix);
+    let dir = run.out.join("mirror0");
+    let (placement, stderr) = run.finish();
+    assert_eq!(placement["restarts"], 2, "{stderr:?}");
+    let recovered = &placement["report"]["recovered"];
+    assert!(recovered["revision"].as_u64().unwrap() >= 3, "{recovered}");
+    assert_eq!(recovered["calibration_reproduced"], true, "{recovered}");
+
+    let journal = messages::journal::read(&dir.join("journal.mcap")).unwrap();
+    let journaled: Vec<MirrorSample> = journal.messages::<topics::Samples>().collect();
+    let train: Vec<_> = journaled
+        .iter()
+        .filter(|s| s.role == Role::Train as u32)
+        .map(MirrorSample::to_sample)
+        .collect();
+    let rig = formats::rig::read(dir.join("rig.toml")).unwrap();
+    let offline = mirror_proc::calibrate::calibrate(&rig, &train, Method::JointKinematics)
+        .unwrap()
+        .to_file(&rig);
+    // JSON numbers compare as f64, exactly: bit for bit.
+    let live = placement["report"]["calibration"].clone();
+    assert_eq!(
+        live,
+        serde_json::to_value(&offline).unwrap(),
+        "the final calibration is not the journaled samples' calibration"
+    );
+    assert_eq!(live["samples"].as_u64().unwrap() as usize, train.len());
+
+    let recording = recorder::reader::Recording::open(dir.join("recording.mcap")).unwrap();
+    let published = recording.lossless_by_topic().unwrap();
+    let published: Vec<MirrorSample> = published[&TopicId::Samples]
+        .iter()
+        .map(|b| bytemuck::pod_read_unaligned(b))
+        .collect();
+    for s in published.iter().filter(|s| s.role == Role::Train as u32) {
+        assert!(
+            journaled.contains(s),
+            "training sample of pose {} published but not journaled",
+            s.pose
+        );
+    }
+    assert!(train.len() >= 10, "{} calibration samples", train.len());
+    eprintln!(
+        "mirror stage killed twice: resumed at revision {}, {} samples journaled ({} training), \
+         final calibration equals the offline one; journal dropped {}; first sample {:.0} ms \
+         after the first kill",
+        recovered["revision"],
+        journaled.len(),
+        train.len(),
+        recovered["dropped"],
+        to_next_sample.as_secs_f64() * 1e3
+    );
+}
+
+/// The arm's driver killed mid-run: the restarted one takes up the plan
+/// after the last pose it reached, so no pose is held twice, and the plan
+/// completes.
+#[test]
+fn a_killed_arm_driver_resumes_its_plan_and_repeats_no_pose() {
+    let mut run = Launcher::start("arm_journal", true);
+    let prefix = run.prefix.clone();
+    run.wait_paired(4);
+    kill9("kinematics_proc", &prefix);
+    let dir = run.out.join("mirror0");
+    let (placement, stderr) = run.finish();
+    assert_eq!(placement["restarts"], 1, "{stderr:?}");
+    let recording = recorder::reader::Recording::open(dir.join("recording.mcap")).unwrap();
+    let joints: Vec<JointState> = recording.lossless_by_topic().unwrap()[&TopicId::JointState]
+        .iter()
+        .map(|b| bytemuck::pod_read_unaligned(b))
+        .collect();
+    // The poses held, in the order they were held: each once.
+    let mut held: Vec<u64> = Vec::new();
+    for js in joints.iter().filter(|js| js.phase == Phase::Settled as u32) {
+        if held.last() != Some(&js.pose) {
+            assert!(
+                !held.contains(&js.pose),
+                "pose {} held twice: {held:?}",
+                js.pose
+            );
+            held.push(js.pose);
+        }
+    }
+    let plan = std::fs::read_to_string(dir.join("plan.csv")).unwrap();
+    let planned: Vec<u64> = plan
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(held.last(), planned.last(), "the plan did not complete");
+    assert!(joints.iter().any(|js| js.phase == Phase::Done as u32));
+    assert!(
+        held.len() + 1 >= planned.len(),
+        "at most the pose being moved to when the driver died is lost: held {held:?} of {planned:?}"
+    );
+    let c = &placement["report"]["counters"];
+    assert_eq!(c["poses_repeated"], 0, "{c}");
+    assert!(c["source_restarts"].as_u64().unwrap() >= 1, "{c}");
+    eprintln!(
+        "arm driver killed: held {} of {} poses, none twice; {} samples",
+        held.len(),
+        planned.len(),
+        placement["report"]["train_samples"].as_u64().unwrap()
+            + placement["report"]["test_samples"].as_u64().unwrap()
+    );
+}
+
+/// A run that ends without a calibration is a failed run: the launcher
+/// writes its report, then exits non-zero with the reason in one line.
+#[test]
+fn a_run_without_a_calibration_exits_non_zero_with_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("pipeline.toml");
+    std::fs::write(
+        &config,
+        "preset = \"nico\"\nmirrors = [0]\ntrain_poses = 3\ntest_poses = 1\ndirect_poses = 0\n\
+         method = \"joint\"\nsource = \"sim\"\nfps = 30.0\nmove_ms = 100\ndwell_ms = 250\n\
+         seed = 4\nmin_train = 8\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let output = Command::new(stage_binaries().join("pipeline"))
+        .args(["--config", config.to_str().unwrap()])
+        .args(["--out", out.to_str().unwrap()])
+        .args(["--prefix", &unique_prefix("uncalibrated"), "--no-record"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    let last = stderr.lines().last().unwrap();
+    assert!(
+        last.starts_with("pipeline: error: mirror 0: no calibration: ")
+            && last.contains("3 of the 8 calibration samples"),
+        "{stderr}"
+    );
+    assert!(out.join("report.json").exists(), "no report");
 }
 
 /// The launcher itself killed with SIGKILL: its stages stop too (none is
@@ -495,7 +670,7 @@ fn shared_memory_is_private_and_a_crash_leaves_nothing_behind() {
     );
     let wait_attached = || {
         let started = Instant::now();
-        while bus.subscriber_count(topics::TopicId::Frames).unwrap() < 1 {
+        while bus.subscriber_count(TopicId::Frames).unwrap() < 1 {
             assert!(
                 started.elapsed() < Duration::from_secs(30),
                 "tracker never attached"
@@ -583,7 +758,7 @@ fn shared_memory_is_private_and_a_crash_leaves_nothing_behind() {
     );
     // Its subscriber port is gone from the service too: only the new one counts.
     wait_attached();
-    assert_eq!(bus.subscriber_count(topics::TopicId::Frames).unwrap(), 1);
+    assert_eq!(bus.subscriber_count(TopicId::Frames).unwrap(), 1);
 }
 
 fn files_under(dir: &Path) -> Vec<PathBuf> {
