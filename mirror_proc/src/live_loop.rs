@@ -7,7 +7,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use geometry::Rig;
-use messages::journal::Journal;
+use messages::journal::{Journal, Recovered};
 use messages::stats::StageStats;
 use messages::topics::{self, Topic};
 use messages::{Bus, Publisher, now_ns};
@@ -76,6 +76,10 @@ impl Outputs {
 /// and what must be published.
 fn resume(live: &mut Live, path: &Path) -> Result<(Journal, Vec<Output>)> {
     let (journal, recovered) = Journal::open(path, &JOURNALED)?;
+    if recovered == Recovered::default() {
+        // A new journal: nothing to resume.
+        return Ok((journal, Vec::new()));
+    }
     if let Some(why) = &recovered.dropped {
         tracing::warn!(
             "{}: dropped an incomplete record at its end ({why}); everything before it is kept",
@@ -85,20 +89,18 @@ fn resume(live: &mut Live, path: &Path) -> Result<(Journal, Vec<Output>)> {
     let samples: Vec<_> = recovered.messages::<topics::Samples>().collect();
     let calibrations: Vec<_> = recovered.messages::<topics::Calibration>().collect();
     let outputs = live.resume(&samples, &calibrations, recovered.dropped.clone());
-    if !samples.is_empty() || !calibrations.is_empty() {
-        let reproduced = live
-            .report()
-            .recovered
-            .and_then(|r| r.calibration_reproduced);
-        tracing::info!(
-            samples = samples.len(),
-            train = live.train_samples(),
-            revision = live.revision(),
-            ?reproduced,
-            "resumed from the journal {}",
-            path.display()
-        );
-    }
+    let reproduced = live
+        .report()
+        .recovered
+        .and_then(|r| r.calibration_reproduced);
+    tracing::info!(
+        samples = samples.len(),
+        train = live.train_samples(),
+        revision = live.revision(),
+        ?reproduced,
+        "resumed from the journal {}",
+        path.display()
+    );
     Ok((journal, outputs))
 }
 
