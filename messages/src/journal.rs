@@ -31,6 +31,7 @@ use std::path::{Path, PathBuf};
 use mcap::records::{MessageHeader, Record};
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
+use crate::one_line;
 use crate::topics::{Layout, MESSAGE_ENCODING, SCHEMA_ENCODING, SmallTopic, TopicId};
 
 /// Largest record accepted when reading: a damaged length must not make the
@@ -357,11 +358,6 @@ fn journaled_topic(
             "channel `{name}` has no readable layout schema"
         ))),
     }
-}
-
-/// `text` with control characters escaped: errors stay on one line.
-fn one_line(text: &str) -> String {
-    text.chars().flat_map(char::escape_debug).collect()
 }
 
 #[cfg(test)]

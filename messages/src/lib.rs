@@ -90,6 +90,21 @@ impl StampOrder {
     }
 }
 
+/// `text` with control characters (newlines included) escaped, so that an
+/// error quoting text from a file or the network stays on one line.
+pub fn one_line(text: &str) -> String {
+    text.chars()
+        .flat_map(|c| {
+            let escaped: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            escaped
+        })
+        .collect()
+}
+
 /// CLOCK_MONOTONIC in nanoseconds: the one clock every stage stamps with,
 /// comparable across processes on this machine.
 #[allow(unsafe_code)]

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use mcap::records::Record;
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use messages::one_line;
 
 use crate::channels::{Layout, MESSAGE_ENCODING, Message, TopicId};
 
@@ -30,20 +31,6 @@ impl ReadError {
             message: one_line(&message),
         }
     }
-}
-
-/// `text` with control characters (newlines included) escaped.
-pub(crate) fn one_line(text: &str) -> String {
-    text.chars()
-        .flat_map(|c| {
-            let escaped: Vec<char> = if c.is_control() {
-                c.escape_default().collect()
-            } else {
-                vec![c]
-            };
-            escaped
-        })
-        .collect()
 }
 
 /// Where reading stopped early, if it did.
