@@ -192,9 +192,12 @@ impl StageArgs {
 }
 
 /// How many of `stages` subscribe to `topic`.
-pub fn subscribers_of(stages: &[StageArgs], topic: TopicId) -> usize {
+pub fn subscribers_of<'a>(
+    stages: impl IntoIterator<Item = &'a StageArgs>,
+    topic: TopicId,
+) -> usize {
     stages
-        .iter()
+        .into_iter()
         .filter(|s| s.subscribes().contains(&topic))
         .count()
 }

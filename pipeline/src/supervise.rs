@@ -118,11 +118,6 @@ impl<'a> Supervisor<'a> {
         Ok(())
     }
 
-    /// The stages started so far.
-    pub fn stages(&self) -> Vec<StageArgs> {
-        self.running.iter().map(|r| r.stage.clone()).collect()
-    }
-
     /// Whether `binary` was started and is still in the run (an optional
     /// stage that stopped is not).
     pub fn is_running(&self, binary: &str) -> bool {
@@ -131,9 +126,9 @@ impl<'a> Supervisor<'a> {
 
     /// Whether every started stage has subscribed to what its spec says.
     pub fn ready(&self, bus: &Bus) -> Result<bool> {
-        let stages = self.stages();
         for topic in TopicId::ALL {
-            if bus.subscriber_count(topic)? < subscribers_of(&stages, topic) {
+            let expected = subscribers_of(self.running.iter().map(|r| &r.stage), topic);
+            if bus.subscriber_count(topic)? < expected {
                 return Ok(false);
             }
         }
