@@ -1,6 +1,7 @@
 //! The project's file formats, a contract with users (documented in the README):
 //!
 //! - [`rig`]: the robot's cameras and arm, TOML;
+//! - [`camera_file`]: camera calibration files (ROS `camera_info`, OpenCV YAML);
 //! - [`samples`]: observed marker positions per pose, CSV;
 //! - [`calibration`]: a mirror calibration, JSON;
 //! - [`evaluation`]: the paper's error metrics, JSON;
@@ -16,6 +17,7 @@
 //! ```
 
 pub mod calibration;
+pub mod camera_file;
 pub mod evaluation;
 pub mod plan;
 pub mod rig;

@@ -1,5 +1,9 @@
 //! The rig file (TOML): both cameras and, optionally, the arm's DH model.
 //!
+//! A camera's intrinsics are given inline (distortion as `k1`, `k2` or as
+//! `dist`, 4, 5 or 8 coefficients in OpenCV's order) or by a calibration
+//! file ([`crate::camera_file`]); its pose is always in the rig.
+//!
 //! ```toml
 //! [[camera]]                      # first = left, second = right
 //! name = "left"
@@ -10,10 +14,15 @@
 //! skew = 0.0
 //! cx = 320.0
 //! cy = 240.0
-//! k1 = -0.25
-//! k2 = 0.08
+//! dist = [-0.25, 0.08, 0.001, -0.0005, 0.01]  # OpenCV's order: k1, k2, p1, p2, k3 [, k4, k5, k6]
 //! camera_from_world = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]  # row-major R
 //! center = [-30.0, 0.0, 0.0]      # C in world, mm
+//!
+//! [[camera]]
+//! name = "right"
+//! calibration = "right.yaml"      # ROS camera_info or OpenCV YAML, relative to this file
+//! camera_from_world = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+//! center = [30.0, 0.0, 0.0]
 //!
 //! [arm]
 //! world_from_base = [1.0, 0.0, 0.0, 0.0,  0.0, 1.0, 0.0, 0.0,  0.0, 0.0, 1.0, 0.0,  0.0, 0.0, 0.0, 1.0]
@@ -25,7 +34,7 @@
 
 use std::path::Path;
 
-use geometry::{Arm, Camera, DhJoint, Intrinsics, Rig};
+use geometry::{Arm, Camera, DhJoint, Distortion, Intrinsics, Rig};
 use nalgebra::{Isometry3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -41,24 +50,145 @@ struct RigFile {
     arm: Option<ArmEntry>,
 }
 
-#[derive(Debug, Serialize, Deserialize)]
+#[derive(Debug, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CameraEntry {
     name: String,
-    width: u32,
-    height: u32,
-    fx: f64,
-    fy: f64,
-    #[serde(default)]
-    skew: f64,
-    cx: f64,
-    cy: f64,
-    #[serde(default)]
-    k1: f64,
-    #[serde(default)]
-    k2: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    calibration: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    width: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    height: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fx: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fy: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    skew: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    cx: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    cy: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    k1: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    k2: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    dist: Option<Vec<f64>>,
     camera_from_world: [f64; 9],
     center: [f64; 3],
+}
+
+impl CameraEntry {
+    /// The intrinsics: from the calibration file (resolved against the
+    /// rig's folder) or from the inline keys.
+    fn intrinsics(&self, path: &Path, i: usize) -> Result<Intrinsics, FormatError> {
+        let key = |k: &str| format!("camera[{i}].{k}");
+        let inline = [
+            ("width", self.width.is_some()),
+            ("height", self.height.is_some()),
+            ("fx", self.fx.is_some()),
+            ("fy", self.fy.is_some()),
+            ("skew", self.skew.is_some()),
+            ("cx", self.cx.is_some()),
+            ("cy", self.cy.is_some()),
+            ("k1", self.k1.is_some()),
+            ("k2", self.k2.is_some()),
+            ("dist", self.dist.is_some()),
+        ];
+        if let Some(file) = &self.calibration {
+            if let Some((k, _)) = inline.iter().find(|(_, given)| *given) {
+                return Err(FormatError::at_key(
+                    path,
+                    key(k),
+                    "given beside calibration; the calibration file sets the intrinsics",
+                ));
+            }
+            let file = path.parent().unwrap_or(Path::new("")).join(file);
+            return crate::camera_file::read(&file)
+                .map(|(k, _)| k)
+                .map_err(|e| FormatError::at_key(path, key("calibration"), e.to_string()));
+        }
+        let need = |k: &str, v: Option<f64>| {
+            v.ok_or_else(|| {
+                FormatError::at_key(
+                    path,
+                    key(k),
+                    "missing: give the intrinsics or calibration = \"FILE\"",
+                )
+            })
+        };
+        let size = |k: &str, v: Option<u32>| need(k, v.map(f64::from)).map(|_| v.unwrap_or(0));
+        let (width, height) = (size("width", self.width)?, size("height", self.height)?);
+        let (fx, fy, cx, cy) = (
+            need("fx", self.fx)?,
+            need("fy", self.fy)?,
+            need("cx", self.cx)?,
+            need("cy", self.cy)?,
+        );
+        let skew = self.skew.unwrap_or(0.0);
+        let dist = match &self.dist {
+            Some(_) if self.k1.is_some() || self.k2.is_some() => {
+                return Err(FormatError::at_key(
+                    path,
+                    key("dist"),
+                    "given beside k1/k2; give one or the other",
+                ));
+            }
+            Some(d) => Distortion::from_opencv(d)
+                .map_err(|e| FormatError::at_key(path, key("dist"), e.to_string()))?,
+            None => Distortion::radial(self.k1.unwrap_or(0.0), self.k2.unwrap_or(0.0)),
+        };
+        check_finite(path, &key("intrinsics"), &[fx, fy, skew, cx, cy])?;
+        check_finite(path, &key("dist"), &dist.to_opencv())?;
+        if width == 0 || height == 0 {
+            return Err(FormatError::at_key(
+                path,
+                key("width"),
+                "image size must be positive",
+            ));
+        }
+        if !(fx > 0.0 && fy > 0.0) {
+            return Err(FormatError::at_key(
+                path,
+                key("fx"),
+                "focal lengths must be positive",
+            ));
+        }
+        Ok(Intrinsics {
+            width,
+            height,
+            fx,
+            fy,
+            skew,
+            cx,
+            cy,
+            dist,
+        })
+    }
+
+    /// The inline form of a camera.
+    fn inline(name: &str, c: &Camera) -> Self {
+        let k = &c.intrinsics;
+        let two_term = k.dist.is_two_term_radial();
+        Self {
+            name: name.to_string(),
+            width: Some(k.width),
+            height: Some(k.height),
+            fx: Some(k.fx),
+            fy: Some(k.fy),
+            skew: Some(k.skew),
+            cx: Some(k.cx),
+            cy: Some(k.cy),
+            k1: two_term.then_some(k.dist.k1),
+            k2: two_term.then_some(k.dist.k2),
+            dist: (!two_term).then(|| k.dist.coefficients()),
+            camera_from_world: mat3_row_major(&c.camera_from_world),
+            center: c.center.into(),
+            ..Self::default()
+        }
+    }
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -119,39 +249,10 @@ pub fn parse(path: &Path, text: &str) -> Result<Rig, FormatError> {
     let mut cameras = Vec::with_capacity(2);
     for (i, c) in file.camera.iter().enumerate() {
         let key = |k: &str| format!("camera[{i}].{k}");
-        check_finite(
-            path,
-            &key("intrinsics"),
-            &[c.fx, c.fy, c.skew, c.cx, c.cy, c.k1, c.k2],
-        )?;
+        let intrinsics = c.intrinsics(path, i)?;
         check_finite(path, &key("center"), &c.center)?;
-        if c.width == 0 || c.height == 0 {
-            return Err(FormatError::at_key(
-                path,
-                key("width"),
-                "image size must be positive",
-            ));
-        }
-        if !(c.fx > 0.0 && c.fy > 0.0) {
-            return Err(FormatError::at_key(
-                path,
-                key("fx"),
-                "focal lengths must be positive",
-            ));
-        }
         let r = mat3(&c.camera_from_world);
         check_rotation(path, &key("camera_from_world"), &r, false)?;
-        let intrinsics = Intrinsics {
-            width: c.width,
-            height: c.height,
-            fx: c.fx,
-            fy: c.fy,
-            skew: c.skew,
-            cx: c.cx,
-            cy: c.cy,
-            k1: c.k1,
-            k2: c.k2,
-        };
         cameras.push(Camera::new(intrinsics, r, Vector3::from(c.center)));
     }
     let arm = file.arm.as_ref().map(|a| parse_arm(path, a)).transpose()?;
@@ -221,20 +322,7 @@ pub fn to_toml(rig: &Rig) -> String {
         .cameras
         .iter()
         .zip(&rig.names)
-        .map(|(c, name)| CameraEntry {
-            name: name.clone(),
-            width: c.intrinsics.width,
-            height: c.intrinsics.height,
-            fx: c.intrinsics.fx,
-            fy: c.intrinsics.fy,
-            skew: c.intrinsics.skew,
-            cx: c.intrinsics.cx,
-            cy: c.intrinsics.cy,
-            k1: c.intrinsics.k1,
-            k2: c.intrinsics.k2,
-            camera_from_world: mat3_row_major(&c.camera_from_world),
-            center: c.center.into(),
-        })
+        .map(|(c, name)| CameraEntry::inline(name, c))
         .collect();
     let arm = rig.arm.as_ref().map(|a| {
         let m = a.world_from_base.to_homogeneous();
@@ -322,5 +410,63 @@ mod tests {
             .join("[[camera]]");
         let e = parse(p, &one_camera).unwrap_err().to_string();
         assert!(e.contains("key camera") && e.contains("found 1"), "{e}");
+    }
+
+    #[test]
+    fn distortion_is_inline_in_either_form_or_from_a_calibration_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = to_toml(&nico_scene().rig);
+        // The second camera's intrinsics come from a ROS file beside the rig.
+        let mut rig = nico_scene().rig;
+        rig.cameras[1].intrinsics.dist =
+            Distortion::from_opencv(&[-0.2, 0.05, 0.001, -0.002, 0.01, 0.1, 0.02, 0.003]).unwrap();
+        std::fs::create_dir(dir.path().join("cal")).unwrap();
+        std::fs::write(
+            dir.path().join("cal/right.yaml"),
+            crate::camera_file::to_ros_yaml("right", &rig.cameras[1].intrinsics),
+        )
+        .unwrap();
+        let second = good.rfind("[[camera]]").unwrap();
+        let (head, tail) = good.split_at(second);
+        let pose: String = tail
+            .lines()
+            .filter(|l| l.starts_with("camera_from_world") || l.starts_with("center"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let by_file =
+            format!("{head}[[camera]]\nname = \"right\"\ncalibration = \"cal/right.yaml\"\n{pose}");
+        let path = dir.path().join("rig.toml");
+        std::fs::write(&path, &by_file).unwrap();
+        let read = read(&path).unwrap();
+        assert_eq!(read.cameras[1].intrinsics, rig.cameras[1].intrinsics);
+        // Written back, a full model is inline as `dist` and reads the same.
+        let inline = to_toml(&read);
+        assert!(inline.contains("dist = ["), "{inline}");
+        let back = parse(Path::new("r.toml"), &inline).unwrap();
+        assert_eq!(back.cameras[1].intrinsics, rig.cameras[1].intrinsics);
+        // Conflicts and missing keys name the key.
+        let both = by_file.replace("calibration = ", "fx = 500.0\ncalibration = ");
+        let e = parse(&path, &both).unwrap_err().to_string();
+        assert!(
+            e.contains("key camera[1].fx: given beside calibration"),
+            "{e}"
+        );
+        let missing = by_file.replace("cal/right.yaml", "cal/none.yaml");
+        let e = parse(&path, &missing).unwrap_err().to_string();
+        assert!(
+            e.contains("key camera[1].calibration: ") && e.contains("none.yaml: cannot read"),
+            "{e}"
+        );
+        let k_and_dist = good.replacen("k1 = ", "dist = [0.1, 0.0, 0.0, 0.0]\nk1 = ", 1);
+        let e = parse(&path, &k_and_dist).unwrap_err().to_string();
+        assert!(e.contains("key camera[0].dist: given beside k1/k2"), "{e}");
+        let three = good.replacen("k1 = ", "dist = [0.1, 0.0, 0.0]\nkk = ", 1);
+        let e = parse(&path, &three.replacen("k2 = ", "kk2 = ", 1))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown field"), "{e}");
+        let no_fx = good.replacen("fx = ", "# fx = ", 1);
+        let e = parse(&path, &no_fx).unwrap_err().to_string();
+        assert!(e.contains("key camera[0].fx: missing"), "{e}");
     }
 }

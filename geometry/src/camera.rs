@@ -1,15 +1,15 @@
-//! Pinhole camera with two-term radial distortion (Zhang 2000).
+//! Pinhole camera with OpenCV's lens distortion ([`Distortion`]).
 //!
-//! `x_d = x (1 + k1 r^2 + k2 r^4)` on normalised coordinates, then
-//! `u = fx x_d + skew y_d + cx`, `v = fy y_d + cy`. The rotation
+//! Normalised coordinates `(x, y) = (X/Z, Y/Z)` are distorted to
+//! `(x_d, y_d)`, then `u = fx x_d + skew y_d + cx`, `v = fy y_d + cy`. The rotation
 //! `camera_from_world` may be improper (det -1, a raw mirror camera); depth may
 //! be negative (a proper mirror camera looks away from the mirror). Only a
 //! point with zero depth cannot be projected.
 
-use nalgebra::{Matrix2, Matrix3, Matrix3x4, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix2x3, Matrix3, Matrix3x4, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::GeometryError;
+use crate::{Distortion, GeometryError};
 
 /// Smallest |depth| (mm) a point may have and still be projected.
 const MIN_ABS_DEPTH: f64 = 1e-9;
@@ -31,10 +31,8 @@ pub struct Intrinsics {
     pub cx: f64,
     /// Principal point v.
     pub cy: f64,
-    /// First radial distortion coefficient.
-    pub k1: f64,
-    /// Second radial distortion coefficient.
-    pub k2: f64,
+    /// Lens distortion.
+    pub dist: Distortion,
 }
 
 impl Intrinsics {
@@ -48,8 +46,7 @@ impl Intrinsics {
             skew: 0.0,
             cx: f64::from(width) / 2.0,
             cy: f64::from(height) / 2.0,
-            k1: 0.0,
-            k2: 0.0,
+            dist: Distortion::default(),
         }
     }
 
@@ -60,56 +57,44 @@ impl Intrinsics {
         )
     }
 
-    /// Radial distortion factor `1 + k1 r^2 + k2 r^4` for `r^2`.
-    fn radial(&self, r2: f64) -> f64 {
-        1.0 + self.k1 * r2 + self.k2 * r2 * r2
+    /// Distorted normalised coordinates to pixels (`K` applied).
+    fn apply_k(&self, d: &Vector2<f64>) -> Vector2<f64> {
+        Vector2::new(
+            self.fx * d.x + self.skew * d.y + self.cx,
+            self.fy * d.y + self.cy,
+        )
     }
 
     /// Normalised undistorted coordinates to distorted pixels.
     pub fn distort_to_pixel(&self, xy: &Vector2<f64>) -> Vector2<f64> {
-        let f = self.radial(xy.norm_squared());
-        let (xd, yd) = (xy.x * f, xy.y * f);
-        Vector2::new(
-            self.fx * xd + self.skew * yd + self.cx,
-            self.fy * yd + self.cy,
-        )
+        self.apply_k(&self.dist.distort(xy))
     }
 
-    /// Distorted pixels to normalised undistorted coordinates (Newton's method
-    /// on the distortion polynomial; converges to ~1e-12 in a few steps).
+    /// `d pixel / d xy` at normalised undistorted `xy`.
+    pub fn pixel_jacobian(&self, xy: &Vector2<f64>) -> Matrix2<f64> {
+        Matrix2::new(self.fx, self.skew, 0.0, self.fy) * self.dist.jacobian(xy)
+    }
+
+    /// Distorted pixels to normalised undistorted coordinates (Newton's
+    /// method on the distortion model; converges to ~1e-12 in a few steps).
     pub fn undistort_pixel(&self, px: &Vector2<f64>) -> Result<Vector2<f64>, GeometryError> {
         if !(px.x.is_finite() && px.y.is_finite()) {
             return Err(GeometryError::NonFinite("pixel"));
         }
         let yd = (px.y - self.cy) / self.fy;
         let xd = (px.x - self.cx - self.skew * yd) / self.fx;
-        let target = Vector2::new(xd, yd);
-        let mut xy = target;
-        for _ in 0..50 {
-            let r2 = xy.norm_squared();
-            let f = self.radial(r2);
-            let residual = xy * f - target;
-            if residual.norm() < 1e-14 {
-                return Ok(xy);
-            }
-            // d(x f)/dx = f I + x (df/dr2 * 2 x)^T
-            let dfdr2 = self.k1 + 2.0 * self.k2 * r2;
-            let jac = Matrix2::identity() * f + xy * xy.transpose() * (2.0 * dfdr2);
-            let step = jac
-                .try_inverse()
-                .ok_or(GeometryError::UndistortDiverged { u: px.x, v: px.y })?
-                * residual;
-            xy -= step;
-            if !(xy.x.is_finite() && xy.y.is_finite()) {
-                break;
-            }
-        }
-        let residual = xy * self.radial(xy.norm_squared()) - target;
-        if residual.norm() < 1e-10 {
-            Ok(xy)
-        } else {
-            Err(GeometryError::UndistortDiverged { u: px.x, v: px.y })
-        }
+        self.dist
+            .undistort(&Vector2::new(xd, yd))
+            .ok_or(GeometryError::UndistortDiverged { u: px.x, v: px.y })
+    }
+
+    /// `d xy / d pixel` of [`Self::undistort_pixel`] at `px`: the inverse of
+    /// [`Self::pixel_jacobian`] at the undistorted point.
+    pub fn undistort_jacobian(&self, px: &Vector2<f64>) -> Result<Matrix2<f64>, GeometryError> {
+        let xy = self.undistort_pixel(px)?;
+        self.pixel_jacobian(&xy)
+            .try_inverse()
+            .ok_or(GeometryError::UndistortDiverged { u: px.x, v: px.y })
     }
 
     /// Whether a pixel lies inside the image with `margin` pixels to spare.
@@ -166,6 +151,16 @@ impl Camera {
         Ok(self.intrinsics.distort_to_pixel(&self.normalized(world)?))
     }
 
+    /// `d pixel / d world` of [`Self::project`] at a world point.
+    pub fn project_jacobian(&self, world: &Vector3<f64>) -> Result<Matrix2x3<f64>, GeometryError> {
+        let pc = self.to_camera(world);
+        let xy = self.normalized(world)?;
+        let z = pc.z;
+        // d(x, y)/d(camera point), then through R.
+        let dn = Matrix2x3::new(1.0 / z, 0.0, -xy.x / z, 0.0, 1.0 / z, -xy.y / z);
+        Ok(self.intrinsics.pixel_jacobian(&xy) * dn * self.camera_from_world)
+    }
+
     /// Depth of a world point along the optical axis (negative behind the camera).
     pub fn depth(&self, world: &Vector3<f64>) -> f64 {
         self.to_camera(world).z
@@ -200,8 +195,7 @@ mod tests {
             skew: 0.4,
             cx: 318.0,
             cy: 243.0,
-            k1: -0.22,
-            k2: 0.06,
+            dist: Distortion::from_opencv(&[-0.22, 0.06, 0.0011, -0.0009, -0.01]).unwrap(),
         }
     }
 
@@ -228,6 +222,37 @@ mod tests {
             prop_assume!(cam.intrinsics.contains(&px, 0.0));
             let xy = cam.intrinsics.undistort_pixel(&px).unwrap();
             prop_assert!((xy - Vector2::new(x / z, y / z)).norm() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn derivatives_match_central_differences() {
+        let r = *nalgebra::Rotation3::from_euler_angles(0.1, -0.2, 0.05).matrix();
+        let cam = Camera::new(nico_like(), r, Vector3::new(5.0, -3.0, 2.0));
+        let h = 1e-4;
+        for p in [
+            Vector3::new(40.0, -30.0, 500.0),
+            Vector3::new(-150.0, 90.0, 420.0),
+        ] {
+            let j = cam.project_jacobian(&p).unwrap();
+            for c in 0..3 {
+                let mut e = Vector3::zeros();
+                e[c] = h;
+                let numeric =
+                    (cam.project(&(p + e)).unwrap() - cam.project(&(p - e)).unwrap()) / (2.0 * h);
+                assert!((j.column(c) - numeric).norm() < 1e-6, "{j} vs {numeric}");
+            }
+            let px = cam.project(&p).unwrap();
+            let ju = cam.intrinsics.undistort_jacobian(&px).unwrap();
+            for c in 0..2 {
+                let mut e = Vector2::zeros();
+                e[c] = 1e-3;
+                let k = &cam.intrinsics;
+                let numeric = (k.undistort_pixel(&(px + e)).unwrap()
+                    - k.undistort_pixel(&(px - e)).unwrap())
+                    / 2e-3;
+                assert!((ju.column(c) - numeric).norm() < 1e-9, "{ju} vs {numeric}");
+            }
         }
     }
 

@@ -4,7 +4,8 @@
 //! file formats. Units are millimetres, radians and pixels; the world frame is
 //! the robot's egocentric (stereo head) frame.
 //!
-//! - [`camera`]: pinhole camera `P = K [R | -R C]` with two-term radial distortion.
+//! - [`camera`]: pinhole camera `P = K [R | -R C]` with lens distortion.
+//! - [`distortion`]: OpenCV's distortion model (`plumb_bob` and `rational_polynomial`).
 //! - [`triangulate`]: stereo triangulation (linear DLT refined on reprojection error).
 //! - [`kinematics`]: standard Denavit-Hartenberg forward kinematics.
 //! - [`plane`]: planes, reflections and the exact mirror-perspective camera.
@@ -28,6 +29,7 @@
 //! ```
 
 pub mod camera;
+pub mod distortion;
 pub mod kinematics;
 pub mod lsq;
 pub mod plane;
@@ -37,6 +39,7 @@ pub mod sim;
 pub mod triangulate;
 
 pub use camera::{Camera, Intrinsics};
+pub use distortion::{Distortion, DistortionModel};
 pub use kinematics::{Arm, DhJoint};
 pub use plane::Plane;
 pub use rig::Rig;

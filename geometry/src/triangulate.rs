@@ -141,8 +141,7 @@ mod tests {
 
     fn stereo() -> [Camera; 2] {
         let k = Intrinsics {
-            k1: -0.2,
-            k2: 0.05,
+            dist: crate::Distortion::from_opencv(&[-0.2, 0.05, 0.001, -0.0008, 0.01]).unwrap(),
             skew: 0.3,
             ..Intrinsics::ideal(640, 480, 550.0)
         };

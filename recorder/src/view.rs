@@ -308,8 +308,8 @@ impl ViewBuilder {
                 frame_id: CAMERAS[k].into(),
                 width: i.width,
                 height: i.height,
-                distortion_model: "plumb_bob".into(),
-                d: vec![i.k1, i.k2, 0.0, 0.0, 0.0],
+                distortion_model: i.dist.model().ros_name().into(),
+                d: i.dist.coefficients(),
                 k: vec![i.fx, i.skew, i.cx, 0.0, i.fy, i.cy, 0.0, 0.0, 1.0],
                 r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
                 p: vec![

@@ -1,10 +1,10 @@
 //! Our geometry against OpenCV's own functions on the same inputs:
-//! `projectPoints` (with radial distortion), `undistortPoints`, and
-//! `triangulatePoints`.
+//! `projectPoints` and `undistortPoints` (with two-term radial, 5-term
+//! `plumb_bob` and 8-term rational distortion), and `triangulatePoints`.
 
 use geometry::sim::nico_scene;
 use geometry::triangulate::{triangulate, triangulate_dlt};
-use geometry::{Camera, Intrinsics};
+use geometry::{Camera, Distortion, Intrinsics};
 use nalgebra::{Matrix3, Vector2, Vector3};
 use opencv::core::{Mat, Point2d, Point3d, Vector, no_array};
 use opencv::prelude::*;
@@ -15,10 +15,29 @@ fn mat3(m: &Matrix3<f64>) -> Mat {
 }
 
 fn dist(k: &Intrinsics) -> Mat {
-    Mat::from_slice(&[k.k1, k.k2, 0.0, 0.0])
+    Mat::from_slice(&k.dist.to_opencv())
         .unwrap()
         .try_clone()
         .unwrap()
+}
+
+/// The simulated head's cameras (two-term radial) and both with a
+/// `plumb_bob` and a rational lens, as real calibrations give them.
+fn lens_variants() -> Vec<Camera> {
+    let lenses = [
+        Distortion::from_opencv(&[-0.28, 0.09, 0.0012, -0.0007, -0.011]).unwrap(),
+        Distortion::from_opencv(&[0.42, -0.05, 0.0009, 0.0004, 0.002, 0.78, 0.06, 0.01]).unwrap(),
+    ];
+    let head = nico_scene().rig.cameras;
+    let mut out = head.to_vec();
+    for lens in lenses {
+        for cam in head {
+            let mut c = cam;
+            c.intrinsics.dist = lens;
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// Deterministic points in front of the cameras (no RNG dependency needed).
@@ -62,7 +81,7 @@ fn opencv_project(cam: &Camera, pts: &[Vector3<f64>]) -> Vec<Vector2<f64>> {
 #[test]
 fn projection_with_distortion_matches_project_points() {
     // OpenCV's model has no skew term, so compare with skew = 0.
-    for cam in nico_scene().rig.cameras {
+    for cam in lens_variants() {
         assert_eq!(cam.intrinsics.skew, 0.0);
         let pts = points(60);
         for (p, theirs) in pts.iter().zip(opencv_project(&cam, &pts)) {
@@ -74,8 +93,12 @@ fn projection_with_distortion_matches_project_points() {
 
 #[test]
 fn undistortion_matches_undistort_points() {
-    let cam = nico_scene().rig.cameras[1];
-    let k = cam.intrinsics;
+    for cam in lens_variants() {
+        undistortion_matches_for(&cam.intrinsics);
+    }
+}
+
+fn undistortion_matches_for(k: &Intrinsics) {
     let pixels: Vector<Point2d> = (0..64)
         .map(|i| {
             Point2d::new(
@@ -91,7 +114,7 @@ fn undistortion_matches_undistort_points() {
         &pixels,
         &mut normalised,
         &mat3(&k.k()),
-        &dist(&k),
+        &dist(k),
         &no_array(),
         &no_array(),
         criteria,

@@ -21,7 +21,9 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use std::f64::consts::FRAC_PI_2;
 
-use crate::{Arm, Camera, DhJoint, GeometryError, Intrinsics, Plane, Rig, Sample, View};
+use crate::{
+    Arm, Camera, DhJoint, Distortion, GeometryError, Intrinsics, Plane, Rig, Sample, View,
+};
 
 /// A finite planar mirror.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -169,8 +171,7 @@ pub fn nico_scene() -> Scene {
         skew: 0.0,
         cx,
         cy,
-        k1: -0.21,
-        k2: 0.045,
+        dist: Distortion::radial(-0.21, 0.045),
     };
     // Slight toe-in and a small vertical misalignment, as on a real head.
     let left_r = *Rotation3::from_euler_angles(0.004, 0.035, 0.002).matrix();
