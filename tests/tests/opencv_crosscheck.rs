@@ -232,3 +232,32 @@ fn triangulation_matches_triangulate_points() {
         }
     }
 }
+
+/// A calibration file written by OpenCV's own `FileStorage`, as the
+/// calibration sample writes one, reads back to the same intrinsics.
+#[test]
+fn calibration_file_written_by_opencv_filestorage_reads_back() {
+    use opencv::core::{FileStorage, FileStorage_Mode};
+    let dir = tempfile::tempdir().unwrap();
+    for cam in lens_variants() {
+        let k = cam.intrinsics;
+        let path = dir.path().join("camera.yaml");
+        let mut fs =
+            FileStorage::new(path.to_str().unwrap(), FileStorage_Mode::WRITE as i32, "").unwrap();
+        opencv::core::write_i32(&mut fs, "image_width", k.width as i32).unwrap();
+        opencv::core::write_i32(&mut fs, "image_height", k.height as i32).unwrap();
+        opencv::core::write_mat(&mut fs, "camera_matrix", &mat3(&k.k())).unwrap();
+        let d = Mat::from_slice(&k.dist.coefficients())
+            .unwrap()
+            .t()
+            .unwrap()
+            .to_mat()
+            .unwrap();
+        opencv::core::write_mat(&mut fs, "distortion_coefficients", &d).unwrap();
+        opencv::core::write_f64(&mut fs, "avg_reprojection_error", 0.31).unwrap();
+        fs.release().unwrap();
+        let (read, kind) = formats::camera_file::read(&path).unwrap();
+        assert_eq!(kind, formats::camera_file::CameraFileKind::OpenCv);
+        assert_eq!(read, k);
+    }
+}
