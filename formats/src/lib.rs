@@ -5,7 +5,8 @@
 //! - [`samples`]: observed marker positions per pose, CSV;
 //! - [`calibration`]: a mirror calibration, JSON;
 //! - [`evaluation`]: the paper's error metrics, JSON;
-//! - [`plan`]: the pose plan the arm is driven through, CSV.
+//! - [`plan`]: the pose plan the arm is driven through, CSV;
+//! - [`urdf`]: robot descriptions, the arm's chain from a URDF.
 //!
 //! Every reader reports a bad file as a [`FormatError`] whose one-line
 //! message names the file and the line or key at fault.
@@ -22,6 +23,7 @@ pub mod evaluation;
 pub mod plan;
 pub mod rig;
 pub mod samples;
+pub mod urdf;
 
 use std::fmt;
 use std::path::Path;

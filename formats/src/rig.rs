@@ -24,7 +24,7 @@
 //! camera_from_world = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
 //! center = [30.0, 0.0, 0.0]
 //!
-//! [arm]
+//! [arm]                           # a DH table, or urdf = "robot.urdf" with base_link and tip_link
 //! world_from_base = [1.0, 0.0, 0.0, 0.0,  0.0, 1.0, 0.0, 0.0,  0.0, 0.0, 1.0, 0.0,  0.0, 0.0, 0.0, 1.0]
 //! tool = [0.0, 0.0, 0.0]          # marker centre in the last link's frame
 //! joints = [
@@ -34,7 +34,7 @@
 
 use std::path::Path;
 
-use geometry::{Arm, Camera, DhJoint, Distortion, Intrinsics, Rig};
+use geometry::{Arm, ArmModel, Camera, DhJoint, Distortion, Intrinsics, Rig};
 use nalgebra::{Isometry3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -197,7 +197,14 @@ struct ArmEntry {
     world_from_base: [f64; 16],
     #[serde(default)]
     tool: [f64; 3],
-    joints: Vec<JointEntry>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    urdf: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    base_link: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    tip_link: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    joints: Option<Vec<JointEntry>>,
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -213,6 +220,9 @@ struct JointEntry {
     #[serde(default = "default_max")]
     max: f64,
 }
+
+/// Joints a joint state message carries.
+const MAX_ARM_JOINTS: usize = 8;
 
 fn default_min() -> f64 {
     -std::f64::consts::PI
@@ -276,15 +286,94 @@ fn parse_arm(path: &Path, a: &ArmEntry) -> Result<Arm, FormatError> {
     }
     let r = m.fixed_view::<3, 3>(0, 0).into_owned();
     check_rotation(path, "arm.world_from_base", &r, false)?;
-    if a.joints.is_empty() {
+    let model = match (&a.urdf, &a.joints) {
+        (Some(_), Some(_)) => {
+            return Err(FormatError::at_key(
+                path,
+                "arm.joints",
+                "given beside arm.urdf; describe the arm by one or the other",
+            ));
+        }
+        (None, None) => {
+            return Err(FormatError::at_key(
+                path,
+                "arm",
+                "describe the arm by joints = [DH rows] or urdf = \"FILE\" with base_link and tip_link",
+            ));
+        }
+        (Some(file), None) => ArmModel::Chain(urdf_chain(path, file, a)?),
+        (None, Some(rows)) => {
+            if a.base_link.is_some() || a.tip_link.is_some() {
+                return Err(FormatError::at_key(
+                    path,
+                    "arm.base_link",
+                    "base_link and tip_link only apply to a URDF arm",
+                ));
+            }
+            ArmModel::Dh(parse_dh(path, rows)?)
+        }
+    };
+    Ok(Arm {
+        world_from_base: Isometry3::from_parts(
+            Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
+            UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)),
+        ),
+        model,
+        tool: Vector3::from(a.tool),
+    })
+}
+
+/// The chain of `[arm] urdf = FILE` (relative to the rig's folder).
+fn urdf_chain(path: &Path, file: &str, a: &ArmEntry) -> Result<geometry::Chain, FormatError> {
+    let link = |key: &str, v: &Option<String>| {
+        v.clone().ok_or_else(|| {
+            FormatError::at_key(
+                path,
+                format!("arm.{key}"),
+                "missing: a URDF arm needs base_link and tip_link",
+            )
+        })
+    };
+    let (base, tip) = (
+        link("base_link", &a.base_link)?,
+        link("tip_link", &a.tip_link)?,
+    );
+    let file = path.parent().unwrap_or(Path::new("")).join(file);
+    let chain = crate::urdf::read(&file, &base, &tip)
+        .map_err(|e| FormatError::at_key(path, "arm.urdf", e.to_string()))?;
+    if chain.inputs.len() > MAX_ARM_JOINTS {
+        return Err(FormatError::at_key(
+            path,
+            "arm.urdf",
+            format!(
+                "the chain from {base:?} to {tip:?} has {} joints; at most {MAX_ARM_JOINTS} are supported",
+                chain.inputs.len()
+            ),
+        ));
+    }
+    Ok(chain)
+}
+
+fn parse_dh(path: &Path, rows: &[JointEntry]) -> Result<Vec<DhJoint>, FormatError> {
+    if rows.is_empty() {
         return Err(FormatError::at_key(
             path,
             "arm.joints",
             "the arm has no joints",
         ));
     }
-    let mut joints = Vec::with_capacity(a.joints.len());
-    for (i, j) in a.joints.iter().enumerate() {
+    if rows.len() > MAX_ARM_JOINTS {
+        return Err(FormatError::at_key(
+            path,
+            "arm.joints",
+            format!(
+                "{} joints; at most {MAX_ARM_JOINTS} are supported",
+                rows.len()
+            ),
+        ));
+    }
+    let mut joints = Vec::with_capacity(rows.len());
+    for (i, j) in rows.iter().enumerate() {
         check_finite(
             path,
             &format!("arm.joints[{i}]"),
@@ -306,14 +395,7 @@ fn parse_arm(path: &Path, a: &ArmEntry) -> Result<Arm, FormatError> {
             max: j.max,
         });
     }
-    Ok(Arm {
-        world_from_base: Isometry3::from_parts(
-            Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
-            UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)),
-        ),
-        joints,
-        tool: Vector3::from(a.tool),
-    })
+    Ok(joints)
 }
 
 /// Renders a rig as TOML.
@@ -332,21 +414,44 @@ pub fn to_toml(rig: &Rig) -> String {
                 world_from_base[4 * r + c] = m[(r, c)];
             }
         }
+        let (urdf, base_link, tip_link, joints) = match &a.model {
+            ArmModel::Dh(rows) => (
+                None,
+                None,
+                None,
+                Some(
+                    rows.iter()
+                        .map(|j| JointEntry {
+                            a: j.a,
+                            alpha: j.alpha,
+                            d: j.d,
+                            theta_offset: j.theta_offset,
+                            min: j.min,
+                            max: j.max,
+                        })
+                        .collect(),
+                ),
+            ),
+            ArmModel::Chain(c) => {
+                let s = c.source.as_ref().expect("a chain arm comes from a URDF");
+                // Absolute, so that the written rig works from any folder.
+                let urdf = std::fs::canonicalize(&s.urdf)
+                    .map_or_else(|_| s.urdf.clone(), |p| p.display().to_string());
+                (
+                    Some(urdf),
+                    Some(s.base_link.clone()),
+                    Some(s.tip_link.clone()),
+                    None,
+                )
+            }
+        };
         ArmEntry {
             world_from_base,
             tool: a.tool.into(),
-            joints: a
-                .joints
-                .iter()
-                .map(|j| JointEntry {
-                    a: j.a,
-                    alpha: j.alpha,
-                    d: j.d,
-                    theta_offset: j.theta_offset,
-                    min: j.min,
-                    max: j.max,
-                })
-                .collect(),
+            urdf,
+            base_link,
+            tip_link,
+            joints,
         }
     });
     toml::to_string(&RigFile { camera, arm }).expect("a rig always serialises")

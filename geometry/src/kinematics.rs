@@ -1,10 +1,18 @@
-//! Standard Denavit-Hartenberg forward kinematics.
+//! Forward kinematics of a serial arm, described either by standard
+//! Denavit-Hartenberg parameters or by a general chain of joints as a
+//! robot description (URDF) gives it.
 //!
-//! Joint `i` contributes `Rz(theta) Tz(d) Tx(a) Rx(alpha)` with
-//! `theta = q_i + theta_offset_i + joint_offset_i`; the end-effector (marker
-//! centre) is `world_from_base * T_1 ... T_n * [tool, 1]`.
+//! - DH: joint `i` contributes `Rz(theta) Tz(d) Tx(a) Rx(alpha)` with
+//!   `theta = q_i + theta_offset_i + joint_offset_i`.
+//! - Chain: joint `i` contributes `origin_i * motion_i(value)`, a rotation
+//!   about (revolute) or a translation along (prismatic) its unit axis, then
+//!   the fixed `tip` transform; fixed joints are folded into the origins.
+//!
+//! The end-effector (marker centre) is `world_from_base * T_1 ... T_n * [tool, 1]`.
+//! Joint offsets are added to the joint values (`q + offset`) and follow a
+//! joint into the joints that mimic it.
 
-use nalgebra::{Isometry3, Matrix4, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix4, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 
 use crate::GeometryError;
 
@@ -51,61 +59,235 @@ impl DhJoint {
     }
 }
 
-/// A serial arm: base placement, DH chain and tool (marker) offset.
+/// What moves at a chain joint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JointKind {
+    /// Rotation about the axis, radians.
+    Revolute,
+    /// Translation along the axis, mm.
+    Prismatic,
+}
+
+/// Where a chain joint's value comes from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum JointValue {
+    /// Its own entry of `q`.
+    Own(usize),
+    /// `multiplier * (q[of] + joint_offset[of]) + offset` (a URDF mimic joint).
+    Mimic {
+        /// The entry of `q` it follows.
+        of: usize,
+        /// Gain on the followed value.
+        multiplier: f64,
+        /// Added after the gain (rad or mm).
+        offset: f64,
+    },
+}
+
+/// One joint of a general chain.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChainJoint {
+    /// The joint's name in the robot description.
+    pub name: String,
+    /// Rotation or translation.
+    pub kind: JointKind,
+    /// Fixed transform from the previous joint's moving frame (or the base) to this joint's frame.
+    pub origin: Isometry3<f64>,
+    /// Unit axis in this joint's frame.
+    pub axis: Unit<Vector3<f64>>,
+    /// Where the value comes from.
+    pub value: JointValue,
+}
+
+/// One entry of `q`: an independently driven joint.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointInfo {
+    /// Its name.
+    pub name: String,
+    /// Rotation (rad) or translation (mm).
+    pub kind: JointKind,
+    /// Lower limit.
+    pub min: f64,
+    /// Upper limit.
+    pub max: f64,
+}
+
+/// A general serial chain, base to tip.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chain {
+    /// The joints that move, base to tip.
+    pub joints: Vec<ChainJoint>,
+    /// Fixed transform from the last joint's moving frame to the tip link.
+    pub tip: Isometry3<f64>,
+    /// The entries of `q`, base to tip.
+    pub inputs: Vec<JointInfo>,
+    /// The robot description it was read from, if any.
+    pub source: Option<ChainSource>,
+}
+
+/// Where a chain was read from: a URDF file and the links it spans.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChainSource {
+    /// The URDF file.
+    pub urdf: String,
+    /// The link the chain starts at.
+    pub base_link: String,
+    /// The link the chain ends at (the tool is in its frame).
+    pub tip_link: String,
+}
+
+impl ChainJoint {
+    /// The joint's transform for its value.
+    pub fn transform(&self, value: f64) -> Isometry3<f64> {
+        let motion = match self.kind {
+            JointKind::Revolute => Isometry3::from_parts(
+                Translation3::identity(),
+                UnitQuaternion::from_axis_angle(&self.axis, value),
+            ),
+            JointKind::Prismatic => Isometry3::from_parts(
+                Translation3::from(self.axis.into_inner() * value),
+                UnitQuaternion::identity(),
+            ),
+        };
+        self.origin * motion
+    }
+}
+
+impl Chain {
+    /// Tip link in the base frame for `q` plus `offsets` (empty for none).
+    pub fn base_from_tip(&self, q: &[f64], offsets: &[f64]) -> Isometry3<f64> {
+        let input = |i: usize| q[i] + offsets.get(i).copied().unwrap_or(0.0);
+        let mut t = Isometry3::identity();
+        for j in &self.joints {
+            let value = match j.value {
+                JointValue::Own(i) => input(i),
+                JointValue::Mimic {
+                    of,
+                    multiplier,
+                    offset,
+                } => multiplier * input(of) + offset,
+            };
+            t *= j.transform(value);
+        }
+        t * self.tip
+    }
+}
+
+/// How an arm's kinematics are described.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ArmModel {
+    /// A standard DH table, one row per joint.
+    Dh(Vec<DhJoint>),
+    /// A general chain, as from a URDF.
+    Chain(Chain),
+}
+
+/// A serial arm: base placement, kinematic model and tool (marker) offset.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Arm {
     /// Rigid transform from the arm base to the world (stereo) frame.
     pub world_from_base: Isometry3<f64>,
-    /// The joints in order from the base.
-    pub joints: Vec<DhJoint>,
-    /// Marker centre in the last link's frame, mm.
+    /// The kinematics from the base to the last link (tip).
+    pub model: ArmModel,
+    /// Marker centre in the last link's (tip's) frame, mm.
     pub tool: Vector3<f64>,
 }
 
 impl Arm {
-    /// Number of joints.
-    pub fn dof(&self) -> usize {
-        self.joints.len()
+    /// An arm described by a DH table.
+    pub fn dh(world_from_base: Isometry3<f64>, joints: Vec<DhJoint>, tool: Vector3<f64>) -> Self {
+        Self {
+            world_from_base,
+            model: ArmModel::Dh(joints),
+            tool,
+        }
     }
 
-    /// End-effector position in the world for joint angles `q` plus
+    /// Number of joint values `q` the arm takes.
+    pub fn dof(&self) -> usize {
+        match &self.model {
+            ArmModel::Dh(joints) => joints.len(),
+            ArmModel::Chain(c) => c.inputs.len(),
+        }
+    }
+
+    /// Lower and upper limit of each entry of `q`.
+    pub fn limits(&self) -> Vec<(f64, f64)> {
+        match &self.model {
+            ArmModel::Dh(joints) => joints.iter().map(|j| (j.min, j.max)).collect(),
+            ArmModel::Chain(c) => c.inputs.iter().map(|j| (j.min, j.max)).collect(),
+        }
+    }
+
+    /// The names of the entries of `q`: the description's joint names, or
+    /// `joint1`, `joint2`, … for a DH table.
+    pub fn joint_names(&self) -> Vec<String> {
+        match &self.model {
+            ArmModel::Dh(joints) => (1..=joints.len()).map(|i| format!("joint{i}")).collect(),
+            ArmModel::Chain(c) => c.inputs.iter().map(|j| j.name.clone()).collect(),
+        }
+    }
+
+    fn check_lengths(&self, q: &[f64], offsets: &[f64]) -> Result<(), GeometryError> {
+        let n = self.dof();
+        if q.len() != n {
+            return Err(GeometryError::Degenerate(format!(
+                "{} joint values given for an arm with {n} joints",
+                q.len()
+            )));
+        }
+        if !offsets.is_empty() && offsets.len() != n {
+            return Err(GeometryError::Degenerate(format!(
+                "{} joint offsets given for an arm with {n} joints",
+                offsets.len()
+            )));
+        }
+        Ok(())
+    }
+
+    /// The tip link's frame in the world for `q` plus per-joint `offsets`
+    /// (an empty slice for none), as a homogeneous matrix.
+    pub fn world_from_tip(
+        &self,
+        q: &[f64],
+        offsets: &[f64],
+    ) -> Result<Matrix4<f64>, GeometryError> {
+        self.check_lengths(q, offsets)?;
+        let t = match &self.model {
+            ArmModel::Dh(joints) => {
+                let mut t = self.world_from_base.to_homogeneous();
+                for (i, joint) in joints.iter().enumerate() {
+                    let extra = offsets.get(i).copied().unwrap_or(0.0);
+                    t *= joint.transform(q[i] + joint.theta_offset + extra);
+                }
+                t
+            }
+            ArmModel::Chain(c) => {
+                (self.world_from_base * c.base_from_tip(q, offsets)).to_homogeneous()
+            }
+        };
+        if t.iter().all(|v| v.is_finite()) {
+            Ok(t)
+        } else {
+            Err(GeometryError::NonFinite("joint values"))
+        }
+    }
+
+    /// End-effector position in the world for joint values `q` plus
     /// per-joint `offsets` (pass an empty slice for none).
     pub fn end_effector(&self, q: &[f64], offsets: &[f64]) -> Result<Vector3<f64>, GeometryError> {
-        if q.len() != self.joints.len() {
-            return Err(GeometryError::Degenerate(format!(
-                "{} joint angles given for an arm with {} joints",
-                q.len(),
-                self.joints.len()
-            )));
-        }
-        if !offsets.is_empty() && offsets.len() != self.joints.len() {
-            return Err(GeometryError::Degenerate(format!(
-                "{} joint offsets given for an arm with {} joints",
-                offsets.len(),
-                self.joints.len()
-            )));
-        }
-        let mut t = self.world_from_base.to_homogeneous();
-        for (i, joint) in self.joints.iter().enumerate() {
-            let extra = offsets.get(i).copied().unwrap_or(0.0);
-            t *= joint.transform(q[i] + joint.theta_offset + extra);
-        }
-        let p = t.transform_point(&Point3::from(self.tool)).coords;
-        if p.iter().all(|v| v.is_finite()) {
-            Ok(p)
-        } else {
-            Err(GeometryError::NonFinite("joint angles"))
-        }
+        let t = self.world_from_tip(q, offsets)?;
+        Ok(t.transform_point(&Point3::from(self.tool)).coords)
     }
 
-    /// Whether every joint angle lies within its limits.
+    /// Whether every joint value lies within its limits.
     pub fn within_limits(&self, q: &[f64]) -> bool {
-        q.len() == self.joints.len()
+        q.len() == self.dof()
             && self
-                .joints
+                .limits()
                 .iter()
                 .zip(q)
-                .all(|(j, &v)| v >= j.min && v <= j.max)
+                .all(|(&(min, max), &v)| v >= min && v <= max)
     }
 }
 
@@ -125,11 +307,7 @@ mod tests {
             min: -3.0,
             max: 3.0,
         };
-        Arm {
-            world_from_base: base,
-            joints: vec![j(130.0), j(127.0)],
-            tool: Vector3::zeros(),
-        }
+        Arm::dh(base, vec![j(130.0), j(127.0)], Vector3::zeros())
     }
 
     #[test]
@@ -177,11 +355,11 @@ mod tests {
             min: -1.0,
             max: 1.0,
         };
-        let arm = Arm {
-            world_from_base: Isometry3::identity(),
-            joints: vec![joint],
-            tool: Vector3::new(1.0, 2.0, 3.0),
-        };
+        let arm = Arm::dh(
+            Isometry3::identity(),
+            vec![joint],
+            Vector3::new(1.0, 2.0, 3.0),
+        );
         let q = 0.5;
         let rz = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), q + 0.1);
         let rx = nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 0.4);
@@ -198,5 +376,91 @@ mod tests {
         assert!(arm.end_effector(&[0.0], &[]).is_err());
         assert!(arm.end_effector(&[0.0, 0.0], &[0.0]).is_err());
         assert!(arm.end_effector(&[f64::NAN, 0.0], &[]).is_err());
+    }
+
+    /// The DH arm of `planar_arm` as a general chain: a joint about z, then
+    /// `Tx(a)` into the next joint's frame.
+    fn planar_chain(mimic: bool) -> Arm {
+        let x = |a: f64| Isometry3::translation(a, 0.0, 0.0);
+        let joint = |name: &str, origin, value| ChainJoint {
+            name: name.into(),
+            kind: JointKind::Revolute,
+            origin,
+            axis: Vector3::z_axis(),
+            value,
+        };
+        let second = if mimic {
+            JointValue::Mimic {
+                of: 0,
+                multiplier: 2.0,
+                offset: 0.1,
+            }
+        } else {
+            JointValue::Own(1)
+        };
+        let info = |name: &str| JointInfo {
+            name: name.into(),
+            kind: JointKind::Revolute,
+            min: -3.0,
+            max: 3.0,
+        };
+        let mut inputs = vec![info("shoulder"), info("elbow")];
+        if mimic {
+            inputs.pop();
+        }
+        Arm {
+            world_from_base: Isometry3::identity(),
+            model: ArmModel::Chain(Chain {
+                joints: vec![
+                    joint("shoulder", Isometry3::identity(), JointValue::Own(0)),
+                    joint("elbow", x(130.0), second),
+                ],
+                tip: x(127.0),
+                inputs,
+                source: None,
+            }),
+            tool: Vector3::zeros(),
+        }
+    }
+
+    #[test]
+    fn a_chain_equals_the_dh_table_it_describes() {
+        let dh = planar_arm(Isometry3::identity());
+        let chain = planar_chain(false);
+        assert_eq!(chain.dof(), 2);
+        assert_eq!(chain.joint_names(), ["shoulder", "elbow"]);
+        for &(q1, q2) in &[(0.0, 0.0), (0.3, -0.7), (1.2, 0.9)] {
+            let a = dh.end_effector(&[q1, q2], &[0.05, -0.02]).unwrap();
+            let b = chain.end_effector(&[q1, q2], &[0.05, -0.02]).unwrap();
+            assert!((a - b).norm() < 1e-12, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn a_mimic_joint_follows_its_input_and_its_offset() {
+        let dh = planar_arm(Isometry3::identity());
+        let mimic = planar_chain(true);
+        assert_eq!(mimic.dof(), 1);
+        for q in [0.0, 0.4, -1.1] {
+            // The elbow is 2 (q + offset) + 0.1.
+            let a = dh
+                .end_effector(&[q + 0.2, 2.0 * (q + 0.2) + 0.1], &[])
+                .unwrap();
+            let b = mimic.end_effector(&[q], &[0.2]).unwrap();
+            assert!((a - b).norm() < 1e-12, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn a_prismatic_joint_translates_along_its_axis() {
+        let mut arm = planar_chain(false);
+        let ArmModel::Chain(c) = &mut arm.model else {
+            unreachable!()
+        };
+        c.joints[1].kind = JointKind::Prismatic;
+        c.joints[1].axis = Unit::new_normalize(Vector3::new(1.0, 1.0, 0.0));
+        let p = arm.end_effector(&[0.0, 10.0], &[]).unwrap();
+        let s = 10.0 / 2f64.sqrt();
+        assert!((p - Vector3::new(257.0 + s, s, 0.0)).norm() < 1e-12, "{p}");
     }
 }

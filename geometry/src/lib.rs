@@ -7,7 +7,7 @@
 //! - [`camera`]: pinhole camera `P = K [R | -R C]` with lens distortion.
 //! - [`distortion`]: OpenCV's distortion model (`plumb_bob` and `rational_polynomial`).
 //! - [`triangulate`]: stereo triangulation (linear DLT refined on reprojection error).
-//! - [`kinematics`]: standard Denavit-Hartenberg forward kinematics.
+//! - [`kinematics`]: forward kinematics from a DH table or a general (URDF) chain.
 //! - [`plane`]: planes, reflections and the exact mirror-perspective camera.
 //! - [`lsq`]: a thin adapter over the `levenberg-marquardt` crate.
 //! - [`sim`]: a seeded simulator of Nico-like datasets with ground truth, and the
@@ -40,7 +40,9 @@ pub mod triangulate;
 
 pub use camera::{Camera, Intrinsics};
 pub use distortion::{Distortion, DistortionModel};
-pub use kinematics::{Arm, DhJoint};
+pub use kinematics::{
+    Arm, ArmModel, Chain, ChainJoint, ChainSource, DhJoint, JointInfo, JointKind, JointValue,
+};
 pub use plane::Plane;
 pub use rig::Rig;
 pub use sample::{Role, Sample, View};

@@ -121,9 +121,9 @@ pub fn random_plan(arm: &Arm, count: usize, seed: u64) -> Vec<PlannedPose> {
             pose,
             role: Role::Train,
             q: arm
-                .joints
-                .iter()
-                .map(|j| rng.random_range(j.min..=j.max))
+                .limits()
+                .into_iter()
+                .map(|(min, max)| rng.random_range(min..=max))
                 .collect(),
         })
         .collect()

@@ -70,7 +70,11 @@ fn run(args: Args) -> Result<()> {
         (None, None) => bail!("give --plan FILE or --random N"),
     };
     let mut plan = plan;
-    let mut home: Vec<f64> = arm.joints.iter().map(|j| 0.5 * (j.min + j.max)).collect();
+    let mut home: Vec<f64> = arm
+        .limits()
+        .into_iter()
+        .map(|(min, max)| 0.5 * (min + max))
+        .collect();
     let journal = args
         .journal
         .as_deref()

@@ -207,16 +207,16 @@ pub fn nico_scene() -> Scene {
         min,
         max,
     };
-    let arm = Arm {
+    let arm = Arm::dh(
         world_from_base,
-        joints: vec![
+        vec![
             joint(0.0, FRAC_PI_2, 0.0, 0.0, 0.2, 2.2), // shoulder flexion
             joint(0.0, FRAC_PI_2, 0.0, FRAC_PI_2, -0.9, 0.7), // shoulder abduction
             joint(0.0, -FRAC_PI_2, 130.0, 0.0, -1.2, 1.2), // upper-arm rotation
             joint(127.0, 0.0, 0.0, 0.0, -1.4, 1.1),    // elbow
         ],
-        tool: Vector3::zeros(),
-    };
+        Vector3::zeros(),
+    );
     let size = Vector2::new(700.0, 500.0);
     let mirrors = vec![
         Mirror::facing(Vector3::new(20.0, 150.0, 520.0), 0.05, -0.12, size),
@@ -367,9 +367,9 @@ pub fn generate(
                 )));
             }
             let q_true: Vec<f64> = arm
-                .joints
-                .iter()
-                .map(|j| rng.random_range(j.min..=j.max))
+                .limits()
+                .into_iter()
+                .map(|(min, max)| rng.random_range(min..=max))
                 .collect();
             let p = arm.end_effector(&q_true, &[])?;
             let seen = match view {
