@@ -1,7 +1,9 @@
 //! The calibration file (JSON). `cameras` are the mirror-perspective cameras
 //! (`P = K [R | -R C]` with the real cameras' intrinsics); `plane` is absent
-//! for a method that has none; `joint_offsets` are added to the joint angles
-//! (`theta = q + theta_offset + joint_offset`). Readers ignore unknown keys.
+//! for a method that has none; `joint_offsets` are added to the joint values
+//! (`theta = q + theta_offset + joint_offset`), one per entry of `q` in the
+//! order of `joint_names` (the arm's joints from base to tip). Readers ignore
+//! unknown keys.
 //!
 //! ```json
 //! {
@@ -12,6 +14,7 @@
 //!     { "name": "right", "camera_from_world": [1, 0, 0, 0, 1, 0, 0, 0, 1], "center": [30, 0, 960] }
 //!   ],
 //!   "joint_offsets": [0.0, 0.0, 0.0, 0.0],
+//!   "joint_names": ["joint1", "joint2", "joint3", "joint4"],
 //!   "train_rms_px": 0.6,
 //!   "samples": 20
 //! }
@@ -60,6 +63,10 @@ pub struct CalibrationFile {
     /// Estimated encoder offsets, rad.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub joint_offsets: Option<Vec<f64>>,
+    /// The arm's joints, base to tip: what `joint_offsets` and the samples'
+    /// `q` columns follow.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_names: Option<Vec<String>>,
     /// RMS reprojection error on the training samples, px.
     pub train_rms_px: f64,
     /// Number of training samples used.
@@ -93,9 +100,16 @@ impl CalibrationFile {
                 })
                 .collect(),
             joint_offsets: joint_offsets.map(<[f64]>::to_vec),
+            joint_names: None,
             train_rms_px,
             samples,
         }
+    }
+
+    /// With the names of the rig's arm joints, if it has an arm.
+    pub fn with_joint_names(mut self, rig: &Rig) -> Self {
+        self.joint_names = rig.arm.as_ref().map(geometry::Arm::joint_names);
+        self
     }
 
     /// The mirror cameras, with the intrinsics of the rig's real cameras.
@@ -177,6 +191,15 @@ pub fn parse(path: &Path, text: &str) -> Result<CalibrationFile, FormatError> {
     }
     if let Some(o) = &cal.joint_offsets {
         check_finite(path, "joint_offsets", o)?;
+        if let Some(names) = &cal.joint_names
+            && names.len() != o.len()
+        {
+            return Err(FormatError::at_key(
+                path,
+                "joint_names",
+                format!("{} names for {} joint offsets", names.len(), o.len()),
+            ));
+        }
     }
     Ok(cal)
 }

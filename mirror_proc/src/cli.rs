@@ -218,6 +218,15 @@ fn run(cli: Cli) -> Result<()> {
                     offsets.len()
                 );
             }
+            if let (Some(names), Some(arm)) = (&cal.joint_names, &rig_model.arm)
+                && *names != arm.joint_names()
+            {
+                bail!(
+                    "{}: key joint_names: {names:?} are not the rig's arm joints {:?}",
+                    calibration.display(),
+                    arm.joint_names()
+                );
+            }
             let data = formats::samples::read(&samples, dof)?;
             let errors = evaluate(
                 &rig_model,
@@ -266,7 +275,8 @@ fn run(cli: Cli) -> Result<()> {
                 Some(&data.truth.joint_offsets),
                 0.0,
                 0,
-            );
+            )
+            .with_joint_names(&data.rig);
             formats::calibration::write(out.join("truth.json"), &truth)?;
             println!(
                 "wrote {}/{{rig.toml, train.csv ({train} mirror poses), test.csv ({test} mirror + {direct} direct poses), truth.json}}",

@@ -174,6 +174,7 @@ impl Calibration {
             self.train_rms_px,
             self.samples,
         )
+        .with_joint_names(rig)
     }
 }
 
