@@ -5,6 +5,7 @@
 //! - [`samples`]: observed marker positions per pose, CSV;
 //! - [`calibration`]: a mirror calibration, JSON;
 //! - [`evaluation`]: the paper's error metrics, JSON;
+//! - [`export`]: a calibration in standard forms (transforms JSON, Foxglove `FrameTransforms`, corrected DH);
 //! - [`plan`]: the pose plan the arm is driven through, CSV;
 //! - [`urdf`]: robot descriptions, the arm's chain from a URDF.
 //!
@@ -20,6 +21,7 @@
 pub mod calibration;
 pub mod camera_file;
 pub mod evaluation;
+pub mod export;
 pub mod plan;
 pub mod rig;
 pub mod samples;

@@ -339,8 +339,12 @@ fn urdf_chain(path: &Path, file: &str, a: &ArmEntry) -> Result<geometry::Chain, 
         link("tip_link", &a.tip_link)?,
     );
     let file = path.parent().unwrap_or(Path::new("")).join(file);
-    let chain = crate::urdf::read(&file, &base, &tip)
+    let mut chain = crate::urdf::read(&file, &base, &tip)
         .map_err(|e| FormatError::at_key(path, "arm.urdf", e.to_string()))?;
+    // Absolute, so that a rig written from this one works from any folder.
+    if let (Some(source), Ok(absolute)) = (chain.source.as_mut(), std::fs::canonicalize(&file)) {
+        source.urdf = absolute.display().to_string();
+    }
     if chain.inputs.len() > MAX_ARM_JOINTS {
         return Err(FormatError::at_key(
             path,
@@ -434,9 +438,7 @@ pub fn to_toml(rig: &Rig) -> String {
             ),
             ArmModel::Chain(c) => {
                 let s = c.source.as_ref().expect("a chain arm comes from a URDF");
-                // Absolute, so that the written rig works from any folder.
-                let urdf = std::fs::canonicalize(&s.urdf)
-                    .map_or_else(|_| s.urdf.clone(), |p| p.display().to_string());
+                let urdf = s.urdf.clone();
                 (
                     Some(urdf),
                     Some(s.base_link.clone()),

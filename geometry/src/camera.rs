@@ -151,6 +151,21 @@ impl Camera {
         Ok(self.intrinsics.distort_to_pixel(&self.normalized(world)?))
     }
 
+    /// The camera's frame in the world as a rigid transform: `R^T` and `C`.
+    /// An improper `R` (a raw mirror camera) is negated first: `-R` gives
+    /// the same projection and is a rotation.
+    pub fn world_from_camera(&self) -> nalgebra::Isometry3<f64> {
+        let r = if self.camera_from_world.determinant() < 0.0 {
+            -self.camera_from_world
+        } else {
+            self.camera_from_world
+        };
+        nalgebra::Isometry3::from_parts(
+            nalgebra::Translation3::from(self.center),
+            nalgebra::UnitQuaternion::from_matrix(&r.transpose()),
+        )
+    }
+
     /// `d pixel / d world` of [`Self::project`] at a world point.
     pub fn project_jacobian(&self, world: &Vector3<f64>) -> Result<Matrix2x3<f64>, GeometryError> {
         let pc = self.to_camera(world);
@@ -222,6 +237,22 @@ mod tests {
             prop_assume!(cam.intrinsics.contains(&px, 0.0));
             let xy = cam.intrinsics.undistort_pixel(&px).unwrap();
             prop_assert!((xy - Vector2::new(x / z, y / z)).norm() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn world_from_camera_inverts_the_pose_also_for_an_improper_rotation() {
+        let r = *nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 1.1).matrix();
+        let c = Vector3::new(10.0, -20.0, 30.0);
+        let p = Vector3::new(50.0, 40.0, 600.0);
+        for rot in [r, r * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -1.0))] {
+            let cam = Camera::new(nico_like(), rot, c);
+            let pose = cam.world_from_camera();
+            let local = pose.inverse_transform_point(&p.into()).coords;
+            // Same ray: equal up to the sign of the homogeneous scale.
+            let expect = cam.to_camera(&p);
+            let sign = if rot.determinant() < 0.0 { -1.0 } else { 1.0 };
+            assert!((local - expect * sign).norm() < 1e-9, "{local} vs {expect}");
         }
     }
 

@@ -65,6 +65,20 @@ impl Plane {
         }
     }
 
+    /// A frame on the plane: origin at the point closest to the world
+    /// origin (`-d n`), z along the normal (towards the robot).
+    pub fn world_from_plane(&self) -> nalgebra::Isometry3<f64> {
+        let rotation = nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &self.normal)
+            .unwrap_or_else(|| {
+                // The normal is -z: any half turn about an axis in the xy plane.
+                nalgebra::UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+            });
+        nalgebra::Isometry3::from_parts(
+            nalgebra::Translation3::from(-self.normal.into_inner() * self.distance),
+            rotation,
+        )
+    }
+
     /// The exact mirror-perspective camera in its proper form: centre
     /// `C' = C - 2 (n . C + d) n`, rotation `-R S` (det +1). Scene points in
     /// front of the mirror have negative depth in it (the paper's camera

@@ -58,6 +58,10 @@ enum Command {
         /// Mirror placement (0, 1 or 2).
         #[arg(long, default_value_t = 0)]
         mirror: usize,
+        /// Take the robot's cameras and arm from this rig file instead of
+        /// the preset's; the preset's mirror placements are kept.
+        #[arg(long)]
+        rig: Option<PathBuf>,
         /// Output directory (created): rig.toml, train.csv, test.csv, truth.json.
         #[arg(long)]
         out: PathBuf,
@@ -105,11 +109,29 @@ enum Command {
         #[arg(long)]
         journal: Option<PathBuf>,
     },
+    /// Write a calibration in standard forms: the mirror as transforms JSON
+    /// and a Foxglove FrameTransforms snapshot, and the calibrated arm as a
+    /// corrected URDF (or DH table) with its rig.
+    Export {
+        /// Rig file (TOML) the calibration was made with.
+        #[arg(long)]
+        rig: PathBuf,
+        /// Calibration file (JSON).
+        #[arg(long)]
+        calibration: PathBuf,
+        /// Output directory (created).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Run the paper's experiment on the simulated robot and print its table.
     Experiment {
         /// Scene preset.
         #[arg(long, value_enum, default_value_t = Preset::Nico)]
         preset: Preset,
+        /// Take the robot's cameras and arm from this rig file instead of
+        /// the preset's; the preset's mirror placements are kept.
+        #[arg(long)]
+        rig: Option<PathBuf>,
         /// Write every figure as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -144,9 +166,25 @@ enum Noise {
 
 fn noise_model(noise: Noise, dof: usize) -> NoiseModel {
     match noise {
-        Noise::Preset => sim::nico_noise(),
+        Noise::Preset => sim::nico_noise_for(dof),
         Noise::None => NoiseModel::none(dof),
     }
+}
+
+/// The preset's scene, with the robot of `rig` if given.
+fn scene(rig: Option<&Path>) -> Result<sim::Scene> {
+    let mut scene = sim::nico_scene();
+    if let Some(path) = rig {
+        let rig = read_rig(path)?;
+        if rig.arm.is_none() {
+            bail!(
+                "{}: the rig has no [arm]; the simulator moves the arm",
+                path.display()
+            );
+        }
+        scene.rig = rig;
+    }
+    Ok(scene)
 }
 
 /// Parses the arguments, runs, and maps any error to one line and exit code 1
@@ -209,24 +247,7 @@ fn run(cli: Cli) -> Result<()> {
             let rig_model = read_rig(&rig)?;
             let dof = rig_model.arm.as_ref().map(|a| a.dof());
             let cal = formats::calibration::read(&calibration)?;
-            if let (Some(offsets), Some(dof)) = (&cal.joint_offsets, dof)
-                && offsets.len() != dof
-            {
-                bail!(
-                    "{}: key joint_offsets: {} offsets but the rig's arm has {dof} joints",
-                    calibration.display(),
-                    offsets.len()
-                );
-            }
-            if let (Some(names), Some(arm)) = (&cal.joint_names, &rig_model.arm)
-                && *names != arm.joint_names()
-            {
-                bail!(
-                    "{}: key joint_names: {names:?} are not the rig's arm joints {:?}",
-                    calibration.display(),
-                    arm.joint_names()
-                );
-            }
+            crate::export::check_joint_names(&cal, &rig_model, &calibration)?;
             let data = formats::samples::read(&samples, dof)?;
             let errors = evaluate(
                 &rig_model,
@@ -240,6 +261,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Simulate {
             preset: Preset::Nico,
             mirror,
+            rig,
             out,
             noise,
             seed,
@@ -247,7 +269,7 @@ fn run(cli: Cli) -> Result<()> {
             test,
             direct,
         } => {
-            let scene = sim::nico_scene();
+            let scene = scene(rig.as_deref())?;
             if mirror >= scene.mirrors.len() {
                 bail!(
                     "--mirror: placement {mirror} does not exist (0..={})",
@@ -283,6 +305,15 @@ fn run(cli: Cli) -> Result<()> {
                 out.display()
             );
         }
+        Command::Export {
+            rig,
+            calibration,
+            out,
+        } => {
+            for path in crate::export::export(&rig, &calibration, &out)? {
+                println!("wrote {}", path.display());
+            }
+        }
         Command::Run {
             prefix,
             rig,
@@ -312,13 +343,14 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Experiment {
             preset: Preset::Nico,
+            rig,
             json,
             plot: plot_path,
             quick,
             noise,
             seed,
         } => {
-            let scene = sim::nico_scene();
+            let scene = scene(rig.as_deref())?;
             let dof = scene.rig.arm.as_ref().map_or(0, |a| a.dof());
             let noise = noise_model(noise, dof);
             let config = if quick {

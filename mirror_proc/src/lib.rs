@@ -17,6 +17,7 @@ pub mod calibrate;
 pub mod cli;
 pub mod evaluate;
 pub mod experiment;
+pub mod export;
 pub mod live;
 pub mod live_loop;
 pub mod plot;

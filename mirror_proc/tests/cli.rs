@@ -264,3 +264,108 @@ fn quick_experiment_prints_the_table_and_writes_figures() {
     let svg = std::fs::read_to_string(&plot).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("joint+kinematics, mirror"));
 }
+
+/// `export` of a calibration made through a URDF rig (with calibration
+/// files) and through the DH rig: the corrected arm gives at `q` what the
+/// calibrated model gives at `q + joint_offsets`, and the transforms hold
+/// the calibration's mirror cameras.
+#[test]
+fn export_writes_a_corrected_arm_and_the_mirror_transforms() {
+    let urdf_rig =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/rigs/nico_urdf/rig.toml");
+    for rig_arg in [Some(urdf_rig.to_str().unwrap()), None] {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let mut sim = vec![
+            "simulate",
+            "--train",
+            "20",
+            "--test",
+            "4",
+            "--direct",
+            "0",
+            "--out",
+            d.to_str().unwrap(),
+        ];
+        if let Some(r) = rig_arg {
+            sim.extend(["--rig", r]);
+        }
+        ok(&sim);
+        let (rig, cal, out) = (p(d, "rig.toml"), p(d, "cal.json"), p(d, "export"));
+        ok(&[
+            "calibrate",
+            "--rig",
+            &rig,
+            "--samples",
+            &p(d, "train.csv"),
+            "--out",
+            &cal,
+        ]);
+        let listed = ok(&[
+            "export",
+            "--rig",
+            &rig,
+            "--calibration",
+            &cal,
+            "--out",
+            &out,
+        ]);
+        let calibration = formats::calibration::read(&cal).unwrap();
+        let original = formats::rig::read(&rig).unwrap();
+        let arm = original.arm.as_ref().unwrap();
+        assert_eq!(calibration.joint_names.as_ref(), Some(&arm.joint_names()));
+        let offsets = calibration.joint_offsets.clone().unwrap();
+        assert!(offsets.iter().any(|o| o.abs() > 1e-4), "{offsets:?}");
+        let corrected = formats::rig::read(d.join("export/rig.corrected.toml")).unwrap();
+        let fixed_arm = corrected.arm.as_ref().unwrap();
+        assert_eq!(fixed_arm.joint_names(), arm.joint_names());
+        for i in 0..10 {
+            let q: Vec<f64> = arm
+                .limits()
+                .iter()
+                .enumerate()
+                .map(|(j, (lo, hi))| lo + (hi - lo) * (0.5 + 0.4 * ((3 * i + j) as f64).cos()))
+                .collect();
+            let want = arm.end_effector(&q, &offsets).unwrap();
+            let got = fixed_arm.end_effector(&q, &[]).unwrap();
+            assert!((want - got).norm() < 1e-9, "{want} vs {got}");
+        }
+        assert_eq!(
+            listed.contains(".corrected.urdf"),
+            rig_arg.is_some(),
+            "{listed}"
+        );
+        // The Foxglove snapshot: each mirror camera's frame is its pose.
+        let tf = json(&std::fs::read_to_string(d.join("export/frame_transforms.json")).unwrap());
+        for (k, cam) in calibration.mirror_cameras(&original).iter().enumerate() {
+            let t = tf["transforms"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|t| t["child_frame_id"] == ["mirror_camera_left", "mirror_camera_right"][k])
+                .unwrap();
+            assert_eq!(t["parent_frame_id"], "world");
+            let v = |o: &serde_json::Value, key: &str| o[key].as_f64().unwrap();
+            let centre = nalgebra::Vector3::new(
+                v(&t["translation"], "x"),
+                v(&t["translation"], "y"),
+                v(&t["translation"], "z"),
+            ) * 1000.0;
+            assert!((centre - cam.center).norm() < 1e-9);
+            let r = &t["rotation"];
+            let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                v(r, "w"),
+                v(r, "x"),
+                v(r, "y"),
+                v(r, "z"),
+            ));
+            let world_from_camera = q.to_rotation_matrix().into_inner();
+            assert!((world_from_camera.transpose() - cam.camera_from_world).norm() < 1e-9);
+        }
+        let mirror = json(&std::fs::read_to_string(d.join("export/mirror.json")).unwrap());
+        let normal = calibration.plane.as_ref().unwrap().normal;
+        for i in 0..3 {
+            assert!((mirror["plane"]["normal"][i].as_f64().unwrap() - normal[i]).abs() < 1e-12);
+        }
+    }
+}

@@ -11,14 +11,16 @@ use foxglove::messages::{
 };
 use geometry::{Camera, Rig};
 use messages::{CalibrationMsg, CameraMarkers, Encoding, FrameHeader, JointState, LocatedObject};
-use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
+use nalgebra::UnitQuaternion;
 
 use crate::channels::Message;
 
 /// The world frame: the robot's base, in which the rig is given.
-pub const WORLD: &str = "world";
-const CAMERAS: [&str; 2] = ["camera_left", "camera_right"];
-const MIRROR_CAMERAS: [&str; 2] = ["mirror_camera_left", "mirror_camera_right"];
+pub use formats::export::WORLD_FRAME as WORLD;
+// The frame names `mirror_proc export` writes, so a viewer shows both alike.
+use formats::export::{
+    CAMERA_FRAMES as CAMERAS, MIRROR_CAMERA_FRAMES as MIRROR_CAMERAS, MIRROR_FRAME,
+};
 /// Camera calibration and static transforms are repeated this often (in
 /// stamp time) so that a viewer joining late gets them.
 const REPEAT_NS: i64 = 1_000_000_000;
@@ -173,19 +175,21 @@ fn quaternion(q: &UnitQuaternion<f64>) -> Option<Quaternion> {
 /// World-from-camera transform of a camera; `None` if its rotation is not
 /// proper (Foxglove frames are right-handed).
 fn camera_transform(stamp_ns: i64, child: &str, camera: &Camera) -> Option<FrameTransform> {
-    let world_from_camera: Matrix3<f64> = camera.camera_from_world.transpose();
-    if world_from_camera.determinant() <= 0.0 {
-        return None;
-    }
-    let rotation =
-        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&world_from_camera));
-    Some(FrameTransform {
+    Some(frame_transform(
+        stamp_ns,
+        child,
+        &camera.world_from_camera(),
+    ))
+}
+
+fn frame_transform(stamp_ns: i64, child: &str, pose: &nalgebra::Isometry3<f64>) -> FrameTransform {
+    FrameTransform {
         timestamp: timestamp(stamp_ns),
         parent_frame_id: WORLD.into(),
         child_frame_id: child.into(),
-        translation: metres(&camera.center),
-        rotation: quaternion(&rotation),
-    })
+        translation: metres(&pose.translation.vector),
+        rotation: quaternion(&pose.rotation),
+    }
 }
 
 /// Builds the viewing messages from the lossless ones. Each viewing channel
@@ -336,21 +340,13 @@ impl ViewBuilder {
         let mut scene = SceneUpdate::default();
         if c.has_plane != 0 {
             let normal = nalgebra::Vector3::new(c.plane[0], c.plane[1], c.plane[2]);
-            let foot = -normal * c.plane[3];
-            let rotation = UnitQuaternion::rotation_between(&nalgebra::Vector3::z(), &normal)
-                .unwrap_or_else(|| {
-                    UnitQuaternion::from_axis_angle(
-                        &nalgebra::Vector3::x_axis(),
-                        std::f64::consts::PI,
-                    )
-                });
-            transforms.transforms.push(FrameTransform {
-                timestamp: timestamp(c.stamp_ns),
-                parent_frame_id: WORLD.into(),
-                child_frame_id: "mirror".into(),
-                translation: metres(&foot),
-                rotation: quaternion(&rotation),
-            });
+            if let Ok(plane) = geometry::Plane::new(normal, c.plane[3]) {
+                transforms.transforms.push(frame_transform(
+                    c.stamp_ns,
+                    MIRROR_FRAME,
+                    &plane.world_from_plane(),
+                ));
+            }
             scene.entities.push(SceneEntity {
                 timestamp: timestamp(c.stamp_ns),
                 frame_id: "mirror".into(),

@@ -248,10 +248,22 @@ pub const NICO_OFFSET_SCALE: f64 = 0.007;
 
 /// The preset's shape of encoder offsets, scaled: used to fit the preset.
 pub fn nico_noise_scaled(pixel_sigma: f64, offset_scale: f64) -> NoiseModel {
+    nico_noise_shaped(pixel_sigma, offset_scale, 4)
+}
+
+/// The `nico` preset's noise for an arm of `dof` joints: its pixel noise,
+/// and its encoder offset pattern repeated over the joints.
+pub fn nico_noise_for(dof: usize) -> NoiseModel {
+    nico_noise_shaped(NICO_PIXEL_SIGMA, NICO_OFFSET_SCALE, dof)
+}
+
+fn nico_noise_shaped(pixel_sigma: f64, offset_scale: f64, dof: usize) -> NoiseModel {
     NoiseModel {
         pixel_sigma,
         joint_offsets: [1.0, -0.8, 0.6, -1.0]
             .iter()
+            .cycle()
+            .take(dof)
             .map(|w| w * offset_scale)
             .collect(),
     }

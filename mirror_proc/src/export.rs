@@ -1,0 +1,118 @@
+//! `mirror_proc export`: a calibration in the forms robot tools read.
+//!
+//! Writes into the output folder:
+//!
+//! - `mirror.json`: the mirror plane and mirror cameras (poses, projection
+//!   matrices), world frame, mm ([`formats::export::mirror_json`]);
+//! - `frame_transforms.json`: the same frames as a Foxglove
+//!   `FrameTransforms` snapshot (metres);
+//! - for a URDF arm, `<name>.corrected.urdf`: the input URDF with the
+//!   estimated joint offsets folded into the joint origins;
+//! - for any arm, `rig.corrected.toml`: the rig with the calibrated arm
+//!   (its DH table's `theta_offset`s corrected, or pointing at the
+//!   corrected URDF), which gives at `q` what the calibration gives at
+//!   `q + joint_offsets`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use formats::calibration::CalibrationFile;
+use geometry::{ArmModel, Rig};
+
+/// Fails unless the calibration was made for the rig's arm joints.
+pub fn check_joint_names(cal: &CalibrationFile, rig: &Rig, cal_path: &Path) -> Result<()> {
+    if let (Some(names), Some(arm)) = (&cal.joint_names, &rig.arm)
+        && *names != arm.joint_names()
+    {
+        bail!(
+            "{}: key joint_names: {names:?} are not the rig's arm joints {:?}",
+            cal_path.display(),
+            arm.joint_names()
+        );
+    }
+    if let (Some(offsets), Some(arm)) = (&cal.joint_offsets, &rig.arm)
+        && offsets.len() != arm.dof()
+    {
+        bail!(
+            "{}: key joint_offsets: {} offsets but the rig's arm has {} joints",
+            cal_path.display(),
+            offsets.len(),
+            arm.dof()
+        );
+    }
+    Ok(())
+}
+
+fn write(path: PathBuf, text: &str, written: &mut Vec<PathBuf>) -> Result<()> {
+    std::fs::write(&path, text).with_context(|| format!("{}: cannot write", path.display()))?;
+    written.push(path);
+    Ok(())
+}
+
+/// Exports the calibration at `cal_path`, made with the rig at `rig_path`,
+/// into `out` (created). Returns the files written.
+pub fn export(rig_path: &Path, cal_path: &Path, out: &Path) -> Result<Vec<PathBuf>> {
+    let rig = formats::rig::read(rig_path)?;
+    let cal = formats::calibration::read(cal_path)?;
+    check_joint_names(&cal, &rig, cal_path)?;
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let mut written = Vec::new();
+    write(
+        out.join("mirror.json"),
+        &formats::export::mirror_json(&cal, &rig),
+        &mut written,
+    )?;
+    write(
+        out.join("frame_transforms.json"),
+        &formats::export::frame_transforms_json(&cal, &rig),
+        &mut written,
+    )?;
+    let Some(arm) = &rig.arm else {
+        return Ok(written);
+    };
+    let offsets = cal
+        .joint_offsets
+        .clone()
+        .unwrap_or_else(|| vec![0.0; arm.dof()]);
+    let corrected = match &arm.model {
+        ArmModel::Dh(_) => formats::export::corrected_dh_rig(&rig, &offsets)
+            .expect("checked: a DH arm with one offset per joint"),
+        ArmModel::Chain(chain) => {
+            let source = chain
+                .source
+                .as_ref()
+                .expect("a chain arm comes from a URDF");
+            let input = Path::new(&source.urdf);
+            let text = formats::read_text(input)?;
+            let fixed = formats::urdf::corrected(
+                input,
+                &text,
+                &source.base_link,
+                &source.tip_link,
+                &offsets,
+            )?;
+            let stem = input
+                .file_stem()
+                .map_or_else(|| "robot".into(), |s| s.to_string_lossy());
+            let name = format!("{stem}.corrected.urdf");
+            let path = out.join(&name);
+            write(path.clone(), &fixed, &mut written)?;
+            let mut new_chain = formats::urdf::read(&path, &source.base_link, &source.tip_link)?;
+            // Beside the corrected rig, so the pair moves together.
+            if let Some(s) = new_chain.source.as_mut() {
+                s.urdf = name;
+            }
+            let mut rig = rig.clone();
+            if let Some(a) = rig.arm.as_mut() {
+                a.model = ArmModel::Chain(new_chain);
+            }
+            rig
+        }
+    };
+    write(
+        out.join("rig.corrected.toml"),
+        &formats::rig::to_toml(&corrected),
+        &mut written,
+    )?;
+    Ok(written)
+}
