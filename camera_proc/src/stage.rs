@@ -5,7 +5,7 @@ use std::ops::ControlFlow;
 use std::time::Duration;
 
 use anyhow::{Result, bail};
-use messages::{Bus, Encoding, FrameHeader, JointState, Phase, Role, now_ns, topics};
+use messages::{Bus, Encoding, FrameHeader, JointPositions, Role, now_ns, topics};
 
 use crate::clock::FrameClock;
 use crate::render::Renderer;
@@ -33,8 +33,9 @@ fn facing(role: u32) -> Facing {
     }
 }
 
-/// The simulated head: renders what it sees, following the arm's joint
-/// states, at `fps`, until `tail_frames` after the pose plan is done.
+/// The simulated head: renders what it sees at `fps`, the arm where the
+/// arm driver's joint positions put it (its card turned as the current pose
+/// goal's role says), until `tail_frames` after the goal that ends the plan.
 pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()> {
     if !(fps > 0.0 && fps <= 1000.0) {
         bail!("--fps must be in (0, 1000]");
@@ -45,8 +46,10 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
     let mut renderer = Renderer::new(world)?;
     let bus = Bus::new(prefix, "camera_proc")?;
     let frames = bus.frame_publisher::<topics::Frames>(2 * (intr.width * intr.height) as usize)?;
-    let joints = bus.subscriber::<topics::JointState>()?;
-    let mut latest: Option<JointState> = None;
+    let joints = bus.subscriber::<topics::JointPositions>()?;
+    let goals = bus.subscriber::<topics::PoseGoal>()?;
+    let mut latest: Option<JointPositions> = None;
+    let (mut role, mut finished) = (Role::Train as u32, false);
     let mut rejections = messages::Rejections::default();
     let mut order = messages::StampOrder::default();
     let (mut seq, mut after_done) = (0u64, 0u32);
@@ -59,11 +62,18 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
     bus.wake()?
         .run(&[joints.listener()], Some(tick), || -> Result<_> {
             while let Some(s) = joints.receive()? {
-                // A bad joint state would render nonsense or fail the render:
+                // Bad positions would render nonsense or fail the render:
                 // dropped, and the last good pose kept.
                 match s.fault(dof).map_or_else(|| order.check(s.stamp_ns), Err) {
-                    Err(why) => rejections.reject("joint state", s.seq, &why),
+                    Err(why) => rejections.reject("joint positions message", s.seq, &why),
                     Ok(()) => latest = Some(s),
+                }
+            }
+            while let Some(g) = goals.receive()? {
+                match g.fault(dof) {
+                    Some(why) => rejections.reject("pose goal", g.seq, &why),
+                    None if g.finished() => finished = true,
+                    None => role = g.role,
                 }
             }
             // Render on the frame clock only; joint-state wake-ups just update the pose.
@@ -77,7 +87,7 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
             let _span = tracing::trace_span!("camera_step", seq).entered();
             frames.publish(h, |left, right| {
                 renderer
-                    .render(state.joints(), facing(state.role), seq, left, right)
+                    .render(state.joints(), facing(role), seq, left, right)
                     .map(|_| true)
             })??;
             // The simulated capture: the frame's stamp to its publication (rendering).
@@ -88,7 +98,7 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
             }
             last_published = Some(published);
             seq += 1;
-            if state.phase() == Ok(Phase::Done) {
+            if finished {
                 after_done += 1;
             }
             Ok(if after_done <= tail_frames {
@@ -99,7 +109,7 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
         })?;
     stats.count("frames", seq);
     stats.count("frames_late", clock.late());
-    stats.count("joint_states_rejected", rejections.count());
+    stats.count("arm_messages_rejected", rejections.count());
     stats.finish();
     tracing::info!(frames = seq, "camera done");
     Ok(())

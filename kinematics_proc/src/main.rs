@@ -1,6 +1,7 @@
-//! `kinematics_proc`: drives the arm through a pose plan and publishes joint
-//! states with the end-effector model's position. For the simulated robot it
-//! is the arm's driver; a real robot would read its encoders here.
+//! `kinematics_proc`: owns the pose plan. It sends each pose goal to the
+//! arm driver, follows the driver's joint positions until the arm has
+//! settled and held the pose, and publishes joint states with the
+//! end-effector model's position.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -8,17 +9,18 @@ use std::time::Duration;
 
 use anyhow::{Result, bail};
 use clap::Parser;
-use kinematics_proc::{Motion, Timing, random_plan};
-use messages::MAX_JOINTS;
+use kinematics_proc::follow::SettleRule;
+use kinematics_proc::random_plan;
+use kinematics_proc::stage::DriveOptions;
 
-/// Run a pose plan and publish the arm's joint states.
+/// Run a pose plan through the arm driver and publish the arm's joint states.
 #[derive(Debug, Parser)]
 #[command(version, about)]
 struct Args {
     /// Service prefix of the pipeline.
     #[arg(long, default_value = "default")]
     prefix: String,
-    /// Rig file (TOML) with the arm's DH model.
+    /// Rig file (TOML) with the arm's model (DH table or URDF).
     #[arg(long)]
     rig: PathBuf,
     /// Pose plan CSV (`pose,role,q0..`); or use --random.
@@ -30,20 +32,24 @@ struct Args {
     /// Seed of --random.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Move time between poses, ms.
-    #[arg(long, default_value_t = 300)]
-    move_ms: u64,
-    /// Dwell time at each pose, ms.
+    /// Hold each settled pose this long before the next goal, ms.
     #[arg(long, default_value_t = 300)]
     dwell_ms: u64,
-    /// Joint-state publication rate, Hz.
-    #[arg(long, default_value_t = 100.0)]
-    rate_hz: f64,
+    /// A pose has settled when every joint is within this of its goal (rad, or mm for a
+    /// prismatic joint)...
+    #[arg(long, default_value_t = 2e-3)]
+    settle_tolerance: f64,
+    /// ...and has stayed within half of it for this long, ms.
+    #[arg(long, default_value_t = 40)]
+    still_ms: u64,
+    /// Fail when the arm driver sends no usable joint positions for this long, ms.
+    #[arg(long, default_value_t = 3000)]
+    silent_ms: u64,
     /// Wait until this many subscribers listen to the joint states (at most 30 s).
     #[arg(long, default_value_t = 0)]
     wait_subscribers: usize,
-    /// Journal each pose the arm reaches here (MCAP); if the file exists,
-    /// take up the plan after the last pose it holds (a restarted driver
+    /// Journal each pose the arm settles at here (MCAP); if the file exists,
+    /// take up the plan after the last pose it holds (a restarted stage
     /// repeats no pose). Give a new path for a new run.
     #[arg(long)]
     journal: Option<PathBuf>,
@@ -54,48 +60,30 @@ fn run(args: Args) -> Result<()> {
     let Some(arm) = rig.arm.clone() else {
         bail!("{}: the rig has no [arm]", args.rig.display())
     };
-    if arm.dof() > MAX_JOINTS {
-        bail!(
-            "{}: the arm has {} joints; at most {MAX_JOINTS} are supported",
-            args.rig.display(),
-            arm.dof()
-        );
+    if !(args.settle_tolerance > 0.0 && args.settle_tolerance.is_finite()) {
+        bail!("--settle-tolerance must be positive");
     }
-    if !(args.rate_hz > 0.0 && args.rate_hz <= 1000.0) {
-        bail!("--rate-hz must be in (0, 1000]");
-    }
-    let plan = match (&args.plan, args.random) {
+    let mut plan = match (&args.plan, args.random) {
         (Some(path), _) => formats::plan::read(path, arm.dof())?,
         (None, Some(n)) => random_plan(&arm, n, args.seed),
         (None, None) => bail!("give --plan FILE or --random N"),
     };
-    let mut plan = plan;
-    let mut home: Vec<f64> = arm
-        .limits()
-        .into_iter()
-        .map(|(min, max)| 0.5 * (min + max))
-        .collect();
     let journal = args
         .journal
         .as_deref()
-        .map(|path| kinematics_proc::stage::resume(path, &mut plan, &mut home))
+        .map(|path| kinematics_proc::stage::resume(path, &mut plan))
         .transpose()?;
-    let motion = Motion::new(
-        plan,
-        Timing {
-            move_ms: args.move_ms,
-            dwell_ms: args.dwell_ms,
+    let options = DriveOptions {
+        settle: SettleRule {
+            tolerance: args.settle_tolerance,
+            still_ns: (args.still_ms * 1_000_000) as i64,
+            dwell_ns: (args.dwell_ms * 1_000_000) as i64,
         },
-        home,
-    );
-    let states = kinematics_proc::stage::drive(
-        &args.prefix,
-        &arm,
-        &motion,
-        Duration::from_secs_f64(1.0 / args.rate_hz),
-        args.wait_subscribers,
-        journal,
-    )?;
+        wait_subscribers: args.wait_subscribers,
+        silent_after: Duration::from_millis(args.silent_ms),
+        ..DriveOptions::default()
+    };
+    let states = kinematics_proc::stage::drive(&args.prefix, &arm, plan, options, journal)?;
     tracing::info!(states, "pose plan done");
     Ok(())
 }

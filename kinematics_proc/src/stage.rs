@@ -1,59 +1,32 @@
-//! The stage's loop: the joint state of each tick, stamped and published.
+//! The stages' loops: `kinematics_proc` following its plan through the arm
+//! driver, and the simulated arm driver.
 
 use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use geometry::{Arm, Role};
+use geometry::Arm;
 use messages::journal::Journal;
 use messages::topics::{self, Topic};
-use messages::{Bus, JointState, Phase, now_ns};
+use messages::{Bus, JointPositions, JointState, MAX_JOINTS, Phase, now_ns};
 
-use crate::{Motion, PlannedPose};
+use crate::PlannedPose;
+use crate::follow::{Follower, SettleRule};
+use crate::sim_arm::SimArm;
 
-/// The joint state `since_start_ns` into `motion`, stamped `stamp_ns`, with
-/// the arm model's end-effector position for its joint angles.
-pub fn joint_state(
-    motion: &Motion,
-    arm: &Arm,
-    seq: u64,
-    stamp_ns: i64,
-    since_start_ns: i64,
-) -> Result<JointState> {
-    let state = motion.state_at(since_start_ns);
-    let plan = motion.plan();
-    let planned = plan.get(state.index.min(plan.len().saturating_sub(1)));
-    let mut msg = JointState {
-        seq,
-        stamp_ns,
-        pose: planned.map_or(0, |p| p.pose),
-        phase: state.phase as u32,
-        role: planned.map_or(Role::Train, |p| p.role) as u32,
-        dof: state.q.len() as u32,
-        ..JointState::default()
-    };
-    msg.q[..state.q.len()].copy_from_slice(&state.q);
-    msg.model_point = arm
-        .end_effector(&state.q, &[])
-        .context("forward kinematics")?
-        .into();
-    Ok(msg)
+/// Where a restarted `kinematics_proc` takes up its plan: the index after
+/// the last pose its journal says the arm settled at; 0 when none.
+pub fn resume_point(plan: &[PlannedPose], reached: &[JointState]) -> usize {
+    reached
+        .last()
+        .and_then(|last| plan.iter().position(|p| p.pose == last.pose))
+        .map_or(0, |i| i + 1)
 }
 
-/// Where a restarted driver takes up its plan: after the last pose its
-/// journal says the arm reached (settled at), starting from that pose's
-/// joint angles; `None` when it reached none.
-pub fn resume_point(plan: &[PlannedPose], reached: &[JointState]) -> Option<(usize, Vec<f64>)> {
-    let last = reached.last()?;
-    let index = plan.iter().position(|p| p.pose == last.pose)?;
-    Some((index + 1, last.joints().to_vec()))
-}
-
-/// Opens the driver's journal at `path` and, if an earlier run of it
-/// reached some poses of `plan`, drops those from `plan` and starts from
-/// the last one's joint angles instead of `home`.
-pub fn resume(path: &Path, plan: &mut Vec<PlannedPose>, home: &mut Vec<f64>) -> Result<Journal> {
+/// Opens the journal at `path` and, if an earlier run reached some poses
+/// of `plan`, drops those from `plan`.
+pub fn resume(path: &Path, plan: &mut Vec<PlannedPose>) -> Result<Journal> {
     let (journal, recovered) = Journal::open(path, &[topics::JointState::ID])
         .with_context(|| format!("resuming from the journal {}", path.display()))?;
     if let Some(why) = &recovered.dropped {
@@ -63,7 +36,8 @@ pub fn resume(path: &Path, plan: &mut Vec<PlannedPose>, home: &mut Vec<f64>) -> 
         );
     }
     let reached: Vec<JointState> = recovered.messages::<topics::JointState>().collect();
-    if let Some((next, q)) = resume_point(plan, &reached) {
+    let next = resume_point(plan, &reached);
+    if next > 0 {
         tracing::info!(
             reached = reached.len(),
             next_pose = plan.get(next).map(|p| p.pose),
@@ -71,67 +45,183 @@ pub fn resume(path: &Path, plan: &mut Vec<PlannedPose>, home: &mut Vec<f64>) -> 
             path.display()
         );
         plan.drain(..next);
-        *home = q;
     }
     Ok(journal)
 }
 
-/// Publishes `motion`'s joint states on pipeline `prefix` every `tick`,
-/// once `wait_subscribers` listen (at most 30 s), until the plan is done;
-/// returns how many it published. With `journal`, each pose the arm
-/// reaches is journaled when it settles there.
-pub fn drive(
-    prefix: &str,
-    arm: &Arm,
-    motion: &Motion,
-    tick: Duration,
-    wait_subscribers: usize,
-    mut journal: Option<Journal>,
-) -> Result<u64> {
-    let bus = Bus::new(prefix, "kinematics_proc")?;
-    let publisher = bus.publisher::<topics::JointState>()?;
+/// How `kinematics_proc` runs the plan.
+#[derive(Debug, Clone, Copy)]
+pub struct DriveOptions {
+    /// When a pose counts as settled, and the dwell.
+    pub settle: SettleRule,
+    /// Joint-state subscribers to wait for (at most 30 s) before the first goal.
+    pub wait_subscribers: usize,
+    /// Fail when the driver sends no usable positions for this long.
+    pub silent_after: Duration,
+    /// Send the current goal again this often until the arm settles.
+    pub resend_every: Duration,
+}
+
+impl Default for DriveOptions {
+    fn default() -> Self {
+        Self {
+            settle: SettleRule::default(),
+            wait_subscribers: 0,
+            silent_after: Duration::from_secs(3),
+            resend_every: Duration::from_millis(250),
+        }
+    }
+}
+
+fn wait_for(what: &str, mut ready: impl FnMut() -> Result<bool>) -> Result<()> {
     let waited = Instant::now();
-    while bus.subscriber_count(topics::JointState::ID)? < wait_subscribers {
+    while !ready()? {
         if waited.elapsed() > Duration::from_secs(30) {
-            bail!("{wait_subscribers} subscribers on the joint states did not appear within 30 s");
+            bail!("{what} did not appear within 30 s");
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    tracing::info!(
-        poses = motion.plan().len(),
-        duration_s = motion.duration_ns() as f64 * 1e-9,
-        "running the pose plan"
-    );
-    let start = now_ns();
+    Ok(())
+}
+
+/// Runs `plan` through the arm driver on pipeline `prefix`: sends each
+/// pose goal, follows the driver's joint positions, publishes a joint
+/// state for each, and journals each pose when the arm settles there.
+/// Returns the joint states published.
+pub fn drive(
+    prefix: &str,
+    arm: &Arm,
+    plan: Vec<PlannedPose>,
+    options: DriveOptions,
+    mut journal: Option<Journal>,
+) -> Result<u64> {
+    let bus = Bus::new(prefix, "kinematics_proc")?;
+    let states = bus.publisher::<topics::JointState>()?;
+    let goals = bus.publisher::<topics::PoseGoal>()?;
+    let positions = bus.subscriber::<topics::JointPositions>()?;
+    wait_for(
+        &format!("{} subscribers on the joint states", options.wait_subscribers),
+        || Ok(bus.subscriber_count(topics::JointState::ID)? >= options.wait_subscribers),
+    )?;
+    wait_for("an arm driver subscribing to pose goals", || {
+        Ok(bus.subscriber_count(topics::PoseGoal::ID)? >= 1)
+    })?;
+    let poses = plan.len();
+    let mut follower = Follower::new(plan, options.settle);
+    tracing::info!(poses, "running the pose plan");
+    let dof = arm.dof();
+    let mut stats = messages::stats::StageStats::new("kinematics_proc");
+    let mut rejections = messages::Rejections::default();
+    let mut order = messages::StampOrder::default();
+    let (mut published, mut received) = (0u64, 0u64);
+    let mut last_fault = None::<String>;
+    let mut last_heard = Instant::now();
+    let mut last_sent = Instant::now();
+    goals.send(follower.goal(now_ns()))?;
+    follower.sent(now_ns());
+    let silent_after = options.silent_after;
+    bus.wake()?.run(
+        &[positions.listener()],
+        Some(Duration::from_millis(10)),
+        || -> Result<_> {
+            while let Some(p) = positions.receive()? {
+                received += 1;
+                let checked = p.fault(dof).map_or_else(|| order.check(p.stamp_ns), Err);
+                if let Err(why) = checked {
+                    rejections.reject("joint positions message", p.seq, &why);
+                    last_fault = Some(why);
+                    continue;
+                }
+                last_heard = Instant::now();
+                let _span = tracing::trace_span!("kinematics_step", seq = p.seq).entered();
+                let step = follower.step(&p, arm)?;
+                if let Some(ns) = step.settled_after_ns {
+                    stats.record("goal_to_settled", ns);
+                    // Journaled before it is published: a restart never
+                    // repeats a pose the arm was seen holding.
+                    if let Some(journal) = &mut journal {
+                        journal.append::<topics::JointState>(&step.state)?;
+                    }
+                }
+                states.send(step.state).context("publishing joint states")?;
+                published += 1;
+                if let Some(goal) = step.goal {
+                    goals.send(goal)?;
+                    last_sent = Instant::now();
+                }
+                if step.state.phase == Phase::Done as u32 {
+                    return Ok(ControlFlow::Break(()));
+                }
+            }
+            if last_heard.elapsed() > silent_after {
+                bail!(
+                    "the arm driver sent no usable joint positions for {:.1} s ({received} received, {} rejected{})",
+                    silent_after.as_secs_f64(),
+                    rejections.count(),
+                    last_fault.as_deref().map(|w| format!(", the last because: {w}")).unwrap_or_default()
+                );
+            }
+            // A driver that started late, or restarted, gets the goal again.
+            if last_sent.elapsed() > options.resend_every {
+                goals.send(follower.goal(now_ns()))?;
+                last_sent = Instant::now();
+            }
+            Ok(ControlFlow::Continue(()))
+        },
+    )?;
+    stats.count("joint_positions", received);
+    stats.count("joint_positions_rejected", rejections.count());
+    stats.finish();
+    Ok(published)
+}
+
+/// The simulated arm driver on pipeline `prefix`: publishes the joint
+/// positions of an arm of `dof` joints starting at `home` every `tick`,
+/// moving to each pose goal in `move_ns`, until a goal ends the plan.
+pub fn run_sim_arm(prefix: &str, home: Vec<f64>, move_ns: i64, tick: Duration) -> Result<()> {
+    let dof = home.len();
+    if dof > MAX_JOINTS {
+        bail!("the arm has {dof} joints; at most {MAX_JOINTS} are supported");
+    }
+    let bus = Bus::new(prefix, "sim_arm")?;
+    let positions = bus.publisher::<topics::JointPositions>()?;
+    let goals = bus.subscriber::<topics::PoseGoal>()?;
+    let mut arm = SimArm::new(home, move_ns);
+    let mut rejections = messages::Rejections::default();
     let mut seq = 0u64;
-    let mut reached = None::<u64>;
     bus.wake()?.run(&[], Some(tick), || -> Result<_> {
-        let stamp = now_ns();
-        let msg = joint_state(motion, arm, seq, stamp, stamp - start)?;
-        seq += 1;
-        let _span = tracing::trace_span!("kinematics_step", seq).entered();
-        // Journaled before it is published: a restart never repeats a pose
-        // the arm was seen holding.
-        if msg.phase == Phase::Settled as u32
-            && reached != Some(msg.pose)
-            && let Some(journal) = &mut journal
-        {
-            journal.append::<topics::JointState>(&msg)?;
-            reached = Some(msg.pose);
+        let now = now_ns();
+        let mut finished = false;
+        while let Some(goal) = goals.receive()? {
+            match goal.fault(dof) {
+                Some(why) => rejections.reject("pose goal", goal.seq, &why),
+                None if goal.finished() => finished = true,
+                None => arm.go_to(goal.pose, goal.joints(), now),
+            }
         }
-        publisher.send(msg).context("publishing joint states")?;
-        Ok(if msg.phase == Phase::Done as u32 {
+        let mut msg = JointPositions {
+            seq,
+            stamp_ns: now,
+            dof: dof as u32,
+            ..JointPositions::default()
+        };
+        msg.q[..dof].copy_from_slice(&arm.at(now));
+        positions.send(msg)?;
+        seq += 1;
+        Ok(if finished {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
         })
     })?;
-    Ok(seq)
+    tracing::info!(positions = seq, "plan finished");
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use geometry::Role;
 
     #[test]
     fn a_restart_takes_up_the_plan_after_the_last_pose_reached() {
@@ -142,23 +232,13 @@ mod tests {
                 q: vec![pose as f64; 2],
             })
             .collect();
-        assert_eq!(resume_point(&plan, &[]), None);
-        let reached = |pose: u64| {
-            let mut js = JointState {
-                pose,
-                dof: 2,
-                ..Default::default()
-            };
-            js.q[..2].copy_from_slice(&[pose as f64; 2]);
-            js
+        assert_eq!(resume_point(&plan, &[]), 0);
+        let reached = |pose: u64| JointState {
+            pose,
+            dof: 2,
+            ..Default::default()
         };
-        assert_eq!(
-            resume_point(&plan, &[reached(10), reached(11)]),
-            Some((2, vec![11.0, 11.0]))
-        );
-        assert_eq!(
-            resume_point(&plan, &[reached(13)]),
-            Some((4, vec![13.0, 13.0]))
-        );
+        assert_eq!(resume_point(&plan, &[reached(10), reached(11)]), 2);
+        assert_eq!(resume_point(&plan, &[reached(13)]), 4);
     }
 }

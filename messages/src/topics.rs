@@ -326,6 +326,10 @@ topic_table! {
     Predictions = "predictions", crate::Prediction, stamp |m| m.stamp_ns;
     /// Objects located through the mirror, [`crate::LocatedObject`].
     Located = "located", crate::LocatedObject, stamp |m| m.stamp_ns;
+    /// The arm driver's raw [`crate::JointPositions`].
+    JointPositions = "joint_positions", crate::JointPositions, stamp |m| m.stamp_ns;
+    /// The [`crate::PoseGoal`]s sent to the arm driver.
+    PoseGoal = "pose_goal", crate::PoseGoal, stamp |m| m.stamp_ns;
 }
 
 #[cfg(test)]

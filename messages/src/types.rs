@@ -437,6 +437,100 @@ pub struct LocatedObject {
     pub position: [f64; 3],
 }
 
+/// The arm driver's raw joint positions (its encoders), as it reads them.
+/// Published by the arm driver, whatever drives the arm; a robot's own
+/// driver publishes this (see `python/mirror_driver`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[type_name("mirror.JointPositions.v1")]
+#[repr(C)]
+pub struct JointPositions {
+    /// Message sequence number.
+    pub seq: u64,
+    /// Time of the reading, ns (CLOCK_MONOTONIC of the driver's host).
+    pub stamp_ns: i64,
+    /// Valid entries in `q`.
+    pub dof: u32,
+    /// Explicit padding.
+    pub reserved: u32,
+    /// Joint positions, base to tip: rad (revolute) or mm (prismatic).
+    pub q: [f64; MAX_JOINTS],
+}
+
+impl JointPositions {
+    /// The valid joint positions.
+    pub fn joints(&self) -> &[f64] {
+        &self.q[..(self.dof as usize).min(MAX_JOINTS)]
+    }
+
+    /// What makes this message unusable for an arm of `dof` joints, if anything.
+    pub fn fault(&self, dof: usize) -> Option<String> {
+        if self.dof as usize != dof {
+            return Some(format!("{} joints, the arm has {dof}", self.dof));
+        }
+        if !self.joints().iter().all(|v| v.is_finite()) {
+            return Some("non-finite joint position".into());
+        }
+        None
+    }
+}
+
+/// A pose the arm is to move to, sent to the arm driver by
+/// `kinematics_proc`, which owns the plan. A driver moves to the latest
+/// goal it received; the same goal may be sent again (same `pose`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[type_name("mirror.PoseGoal.v1")]
+#[repr(C)]
+pub struct PoseGoal {
+    /// Message sequence number.
+    pub seq: u64,
+    /// When it was sent, ns.
+    pub stamp_ns: i64,
+    /// Pose id of the plan.
+    pub pose: u64,
+    /// [`Role`] of the pose.
+    pub role: u32,
+    /// Valid entries in `q`.
+    pub dof: u32,
+    /// [`PoseGoal::FINISHED`] once the plan is over (then `q` is unused).
+    pub flags: u32,
+    /// Explicit padding.
+    pub reserved: u32,
+    /// Target joint positions, base to tip: rad or mm.
+    pub q: [f64; MAX_JOINTS],
+}
+
+impl PoseGoal {
+    /// Flag: the plan is over; the driver may stop.
+    pub const FINISHED: u32 = 1;
+
+    /// The valid targets.
+    pub fn joints(&self) -> &[f64] {
+        &self.q[..(self.dof as usize).min(MAX_JOINTS)]
+    }
+
+    /// Whether this goal ends the plan.
+    pub fn finished(&self) -> bool {
+        self.flags & Self::FINISHED != 0
+    }
+
+    /// What makes this goal unusable for an arm of `dof` joints, if anything.
+    pub fn fault(&self, dof: usize) -> Option<String> {
+        if self.finished() {
+            return None;
+        }
+        if self.dof as usize != dof {
+            return Some(format!("{} joints, the arm has {dof}", self.dof));
+        }
+        if !self.joints().iter().all(|v| v.is_finite()) {
+            return Some("non-finite target".into());
+        }
+        if Role::try_from(self.role).is_err() {
+            return Some(format!("role {} unknown", self.role));
+        }
+        None
+    }
+}
+
 // No implicit padding: each size equals the sum of its fields.
 const _: () = {
     assert!(size_of::<FrameHeader>() == 8 * 3 + 4 * 4);
@@ -449,4 +543,6 @@ const _: () = {
     assert!(size_of::<CalibrationMsg>() == 16 + 16 + 32 + 2 * 96 + 8 * MAX_JOINTS + 8);
     assert!(size_of::<Prediction>() == 24 + 8 + 24 + 24 + 32 + 16);
     assert!(size_of::<LocatedObject>() == 16 + 8 + 24);
+    assert!(size_of::<JointPositions>() == 8 * 2 + 4 * 2 + 8 * MAX_JOINTS);
+    assert!(size_of::<PoseGoal>() == 8 * 3 + 4 * 4 + 8 * MAX_JOINTS);
 };

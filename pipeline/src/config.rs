@@ -42,7 +42,7 @@ pub struct Config {
     pub source: Source,
     /// Camera frame rate, Hz.
     pub fps: f64,
-    /// Move time between poses, ms.
+    /// Move time between poses of the simulated arm (`sim_arm`), ms.
     pub move_ms: u64,
     /// Dwell time at each pose, ms.
     pub dwell_ms: u64,
@@ -50,6 +50,10 @@ pub struct Config {
     pub seed: u64,
     /// Training samples before the first calibration.
     pub min_train: usize,
+    /// The arm driver's command (`--prefix P --rig R` are appended);
+    /// absent: the built-in simulated arm, `sim_arm`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arm_driver: Option<String>,
 }
 
 /// What the command line may override.
@@ -63,6 +67,7 @@ pub struct Overrides {
     pub method: Option<Method>,
     /// Camera frame rate, Hz.
     pub fps: Option<f64>,
+    pub arm_driver: Option<String>,
 }
 
 impl Config {
@@ -78,11 +83,20 @@ impl Config {
             train_poses,
             method,
             fps,
+            arm_driver,
         } = overrides;
         config.mirrors = mirrors.unwrap_or(config.mirrors);
         config.train_poses = train_poses.unwrap_or(config.train_poses);
         config.method = method.unwrap_or(config.method);
         config.fps = fps.unwrap_or(config.fps);
+        config.arm_driver = arm_driver.or(config.arm_driver);
+        if let Some(command) = &config.arm_driver {
+            let words = shell_words::split(command)
+                .map_err(|e| anyhow::anyhow!("arm_driver: {command:?}: {e}"))?;
+            if words.is_empty() {
+                bail!("arm_driver: the command is empty");
+            }
+        }
         let placements = match config.preset {
             Preset::Nico => geometry::sim::nico_scene().mirrors.len(),
         };

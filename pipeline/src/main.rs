@@ -3,9 +3,9 @@
 //!
 //! Per placement it writes `rig.toml` and `plan.csv` into `OUT/mirror<i>/`,
 //! starts the stages from their specs ([`stages`]): `recorder` (unless
-//! `--no-record`), `mirror_proc`, `tracker_proc` and `camera_proc`, waits
-//! until they are subscribed, then starts `kinematics_proc` on the plan
-//! ([`supervise`]). A stage that crashes is restarted as its policy says.
+//! `--no-record`), `mirror_proc`, `tracker_proc`, `camera_proc` and the arm
+//! driver (`sim_arm`, or `--arm-driver`), waits until they are subscribed,
+//! then starts `kinematics_proc` on the plan ([`supervise`]). A stage that crashes is restarted as its policy says.
 //! When the plan is done `mirror_proc` writes `report.json`; the launcher
 //! stops the rest, evaluates the calibration against the simulator's truth
 //! and writes `OUT/report.json` ([`report`]). Ctrl-C stops every stage
@@ -52,6 +52,11 @@ struct Args {
     /// Camera frame rate, Hz (overrides the config).
     #[arg(long)]
     fps: Option<f64>,
+    /// The arm driver's command, instead of the simulated arm; the launcher
+    /// appends `--prefix P --rig R` (overrides the config's `arm_driver`).
+    /// E.g. "target/pyenv/bin/python python/examples/sim_arm.py".
+    #[arg(long)]
+    arm_driver: Option<String>,
     /// Service prefix (default: unique per run).
     #[arg(long)]
     prefix: Option<String>,
@@ -91,6 +96,7 @@ fn run(args: Args) -> Result<()> {
         train_poses: args.poses,
         method: args.method,
         fps: args.fps,
+        arm_driver: args.arm_driver,
     };
     let config = Config::load(&args.config, overrides)?;
     std::fs::create_dir_all(&args.out)

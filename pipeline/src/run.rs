@@ -153,11 +153,19 @@ impl Run {
                 mirror,
                 fps: config.fps,
             },
+            StageArgs::ArmDriver {
+                rig: rig.clone(),
+                command: config
+                    .arm_driver
+                    .as_deref()
+                    .map(shell_words::split)
+                    .transpose()?,
+                move_ms: config.move_ms,
+            },
         ]);
         let arm = StageArgs::Kinematics {
             rig: rig.clone(),
             plan: plan_path,
-            move_ms: config.move_ms,
             dwell_ms: config.dwell_ms,
             wait_subscribers: subscribers_of(&consumers, TopicId::JointState),
             journal: arm_journal,

@@ -63,14 +63,21 @@ pub enum StageArgs {
         /// Frame rate, Hz.
         fps: f64,
     },
-    /// `kinematics_proc`: the arm's driver on a pose plan.
+    /// The arm driver: `sim_arm`, or the user's command.
+    ArmDriver {
+        /// The rig.
+        rig: PathBuf,
+        /// The user's driver command, split into words; `None`: `sim_arm`.
+        command: Option<Vec<String>>,
+        /// Move time of `sim_arm`, ms.
+        move_ms: u64,
+    },
+    /// `kinematics_proc`: the pose plan, through the arm driver.
     Kinematics {
         /// The rig.
         rig: PathBuf,
         /// The pose plan.
         plan: PathBuf,
-        /// Move time between poses, ms.
-        move_ms: u64,
         /// Dwell time at each pose, ms.
         dwell_ms: u64,
         /// Joint-state subscribers to wait for before moving.
@@ -81,9 +88,12 @@ pub enum StageArgs {
 }
 
 impl StageArgs {
-    /// The binary.
+    /// The stage's name in logs and reports: its binary's, or `arm_driver`
+    /// for a user's driver.
     pub fn binary(&self) -> &'static str {
         match self {
+            StageArgs::ArmDriver { command: None, .. } => "sim_arm",
+            StageArgs::ArmDriver { .. } => "arm_driver",
             StageArgs::Recorder { .. } => "recorder",
             StageArgs::Mirror { .. } => "mirror_proc",
             StageArgs::Tracker => "tracker_proc",
@@ -98,16 +108,32 @@ impl StageArgs {
             StageArgs::Recorder { .. } => &TopicId::ALL,
             StageArgs::Mirror { .. } => &[TopicId::JointState, TopicId::Detections],
             StageArgs::Tracker => &[TopicId::Frames],
-            StageArgs::Camera { .. } => &[TopicId::JointState],
-            StageArgs::Kinematics { .. } => &[],
+            StageArgs::Camera { .. } => &[TopicId::JointPositions, TopicId::PoseGoal],
+            StageArgs::ArmDriver { .. } => &[TopicId::PoseGoal],
+            StageArgs::Kinematics { .. } => &[TopicId::JointPositions],
         }
     }
 
-    /// The command line, for pipeline `prefix`.
+    /// The program to run: a workspace binary in `bin_dir`, or the first
+    /// word of a user's driver command (found on `PATH` if it has no `/`).
+    pub fn program(&self, bin_dir: &std::path::Path) -> PathBuf {
+        match self {
+            StageArgs::ArmDriver {
+                command: Some(words),
+                ..
+            } => PathBuf::from(&words[0]),
+            _ => bin_dir.join(self.binary()),
+        }
+    }
+
+    /// The command line after the program, for pipeline `prefix`.
     pub fn argv(&self, prefix: &str) -> Vec<String> {
         let path = |p: &PathBuf| p.display().to_string();
         let mut argv: Vec<String> = match self {
             StageArgs::Recorder { .. } | StageArgs::Kinematics { .. } => vec![],
+            StageArgs::ArmDriver { command, .. } => {
+                command.as_ref().map_or_else(Vec::new, |w| w[1..].to_vec())
+            }
             StageArgs::Mirror { .. } | StageArgs::Tracker => vec!["run".into()],
             StageArgs::Camera { .. } => vec!["sim".into()],
         };
@@ -152,17 +178,26 @@ impl StageArgs {
                 flag("mirror", mirror.to_string());
                 flag("fps", fps.to_string());
             }
+            StageArgs::ArmDriver {
+                rig,
+                command,
+                move_ms,
+            } => {
+                flag("rig", path(rig));
+                // The contract of a user's driver is --prefix and --rig only.
+                if command.is_none() {
+                    flag("move-ms", move_ms.to_string());
+                }
+            }
             StageArgs::Kinematics {
                 rig,
                 plan,
-                move_ms,
                 dwell_ms,
                 wait_subscribers,
                 journal,
             } => {
                 flag("rig", path(rig));
                 flag("plan", path(plan));
-                flag("move-ms", move_ms.to_string());
                 flag("dwell-ms", dwell_ms.to_string());
                 flag("wait-subscribers", wait_subscribers.to_string());
                 flag("journal", path(journal));
@@ -178,6 +213,8 @@ impl StageArgs {
             StageArgs::Mirror { .. } => RestartPolicy::EndsRun,
             StageArgs::Tracker => RestartPolicy::Service,
             StageArgs::Camera { .. } | StageArgs::Kinematics { .. } => RestartPolicy::Finishes,
+            // It stops when the plan is finished, or is stopped with the run.
+            StageArgs::ArmDriver { .. } => RestartPolicy::Finishes,
         }
     }
 

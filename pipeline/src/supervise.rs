@@ -33,7 +33,7 @@ impl Launch {
             .append(true)
             .open(&self.log)
             .with_context(|| format!("{}: cannot open", self.log.display()))?;
-        let binary = self.bin_dir.join(stage.binary());
+        let binary = stage.program(&self.bin_dir);
         let mut command = Command::new(&binary);
         if let Some(dir) = &self.trace_dir {
             command.env(messages::trace::TRACE_DIR_ENV, dir);
