@@ -3,8 +3,11 @@
 # with the contrib aruco module, clang for the opencv crate's bindings,
 # Python with venv for the tests' independent MCAP reader, and Node.js with
 # npm for the tests' Foxglove client (unless a Node.js is already there).
-# Does nothing when everything is already there.
+# Installs the Python arm-driver SDK (python/mirror_driver, on PyPI's
+# iceoryx2 bindings) into target/pyenv. Does nothing when everything is
+# already there.
 set -euo pipefail
+cd "$(dirname "$0")/.."
 
 packages=(pkg-config clang libclang-dev libopencv-dev libopencv-contrib-dev python3 python3-venv)
 # A Node.js installed otherwise (NodeSource, nvm) brings its own npm; Debian's would conflict.
@@ -28,3 +31,14 @@ for component in rustfmt clippy; do
         rustup component add "$component"
     fi
 done
+
+# The Python arm-driver SDK, editable: target/pyenv/bin/python runs a driver
+# such as python/examples/sim_arm.py against the repository's SDK.
+if [ ! -x target/pyenv/bin/python ]; then
+    python3 -m venv target/pyenv
+fi
+if ! target/pyenv/bin/python -c "import mirror_driver" 2>/dev/null; then
+    echo "setup: installing the Python driver SDK into target/pyenv" >&2
+    target/pyenv/bin/pip install --quiet --disable-pip-version-check \
+        --editable python/mirror_driver
+fi

@@ -4,10 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-# The independent MCAP reader and the official Foxglove schemas, for the recording tests.
-if [ ! -x target/pyenv/bin/python ]; then
-    python3 -m venv target/pyenv
-fi
+# The independent MCAP reader and the official Foxglove schemas, for the
+# recording tests (setup.sh made target/pyenv).
 target/pyenv/bin/pip install --quiet --disable-pip-version-check \
     "mcap==1.6.*" "foxglove-schemas-protobuf==0.4.*" "websockets==15.*"
 # The official Foxglove WebSocket client library, for the live view's tests.

@@ -131,7 +131,11 @@ impl Follower {
         let mut settled_after_ns = None;
         let mut goal = None;
         let (pose, role, phase) = match self.plan.get(self.index) {
-            None => (self.plan.last().map_or(0, |p| p.pose), self.plan.last().map_or(0, |p| p.role as u32), Phase::Done),
+            None => (
+                self.plan.last().map_or(0, |p| p.pose),
+                self.plan.last().map_or(0, |p| p.role as u32),
+                Phase::Done,
+            ),
             Some(target) => {
                 let near = target
                     .q
@@ -174,7 +178,14 @@ impl Follower {
         })
     }
 
-    fn state(&mut self, p: &JointPositions, arm: &Arm, pose: u64, role: u32, phase: Phase) -> Result<JointState> {
+    fn state(
+        &mut self,
+        p: &JointPositions,
+        arm: &Arm,
+        pose: u64,
+        role: u32,
+        phase: Phase,
+    ) -> Result<JointState> {
         let q = p.joints();
         let mut state = JointState {
             seq: self.state_seq,
@@ -202,13 +213,26 @@ mod tests {
 
     fn plan() -> Vec<PlannedPose> {
         vec![
-            PlannedPose { pose: 7, role: Role::Train, q: vec![0.5, -0.2, 0.1, 0.3] },
-            PlannedPose { pose: 8, role: Role::Direct, q: vec![1.0, 0.0, 0.0, 0.0] },
+            PlannedPose {
+                pose: 7,
+                role: Role::Train,
+                q: vec![0.5, -0.2, 0.1, 0.3],
+            },
+            PlannedPose {
+                pose: 8,
+                role: Role::Direct,
+                q: vec![1.0, 0.0, 0.0, 0.0],
+            },
         ]
     }
 
     fn reading(t_ms: i64, q: [f64; 4]) -> JointPositions {
-        let mut p = JointPositions { seq: t_ms as u64, stamp_ns: t_ms * 1_000_000, dof: 4, ..Default::default() };
+        let mut p = JointPositions {
+            seq: t_ms as u64,
+            stamp_ns: t_ms * 1_000_000,
+            dof: 4,
+            ..Default::default()
+        };
         p.q[..4].copy_from_slice(&q);
         p
     }
@@ -216,7 +240,11 @@ mod tests {
     #[test]
     fn settles_when_near_and_still_holds_for_the_dwell_then_moves_on() {
         let arm = geometry::sim::nico_scene().rig.arm.unwrap();
-        let rule = SettleRule { tolerance: 1e-3, still_ns: 40_000_000, dwell_ns: 100_000_000 };
+        let rule = SettleRule {
+            tolerance: 1e-3,
+            still_ns: 40_000_000,
+            dwell_ns: 100_000_000,
+        };
         let mut f = Follower::new(plan(), rule);
         let first = f.goal(0);
         f.sent(0);
@@ -226,7 +254,10 @@ mod tests {
         assert_eq!(s.state.phase, Phase::Moving as u32);
         // At the goal, but not yet still for 40 ms.
         let at = [0.5, -0.2, 0.1, 0.3];
-        assert_eq!(f.step(&reading(50, at), &arm).unwrap().state.phase, Phase::Moving as u32);
+        assert_eq!(
+            f.step(&reading(50, at), &arm).unwrap().state.phase,
+            Phase::Moving as u32
+        );
         let s = f.step(&reading(90, at), &arm).unwrap();
         assert_eq!(s.state.phase, Phase::Settled as u32);
         assert_eq!(s.settled_after_ns, Some(90_000_000));
@@ -242,14 +273,26 @@ mod tests {
         // The second pose; pulled away while settled, it is moving again.
         let there = [1.0, 0.0, 0.0, 0.0];
         f.step(&reading(200, there), &arm).unwrap();
-        assert_eq!(f.step(&reading(250, there), &arm).unwrap().state.phase, Phase::Settled as u32);
-        assert_eq!(f.step(&reading(260, [1.01, 0.0, 0.0, 0.0]), &arm).unwrap().state.phase, Phase::Moving as u32);
+        assert_eq!(
+            f.step(&reading(250, there), &arm).unwrap().state.phase,
+            Phase::Settled as u32
+        );
+        assert_eq!(
+            f.step(&reading(260, [1.01, 0.0, 0.0, 0.0]), &arm)
+                .unwrap()
+                .state
+                .phase,
+            Phase::Moving as u32
+        );
         f.step(&reading(300, there), &arm).unwrap();
         f.step(&reading(350, there), &arm).unwrap();
         let s = f.step(&reading(460, there), &arm).unwrap();
         assert!(s.goal.unwrap().finished());
         assert_eq!(s.state.phase, Phase::Done as u32);
         assert!(f.done());
-        assert_eq!(f.step(&reading(470, there), &arm).unwrap().state.phase, Phase::Done as u32);
+        assert_eq!(
+            f.step(&reading(470, there), &arm).unwrap().state.phase,
+            Phase::Done as u32
+        );
     }
 }

@@ -52,4 +52,3 @@ pub fn random_plan(arm: &Arm, count: usize, seed: u64) -> Vec<PlannedPose> {
         })
         .collect()
 }
-

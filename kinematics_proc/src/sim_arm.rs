@@ -57,7 +57,10 @@ mod tests {
         let mut arm = SimArm::new(vec![0.0, 0.0], 100_000_000);
         assert_eq!(arm.at(5), vec![0.0, 0.0]);
         arm.go_to(1, &[1.0, -1.0], 0);
-        assert!((arm.at(50_000_000)[0] - 0.5).abs() < 1e-12, "half way in time is half way");
+        assert!(
+            (arm.at(50_000_000)[0] - 0.5).abs() < 1e-12,
+            "half way in time is half way"
+        );
         arm.go_to(1, &[1.0, -1.0], 60_000_000);
         assert_eq!(arm.at(100_000_000), vec![1.0, -1.0]);
         arm.go_to(2, &[2.0, 0.0], 200_000_000);

@@ -100,7 +100,10 @@ pub fn drive(
     let goals = bus.publisher::<topics::PoseGoal>()?;
     let positions = bus.subscriber::<topics::JointPositions>()?;
     wait_for(
-        &format!("{} subscribers on the joint states", options.wait_subscribers),
+        &format!(
+            "{} subscribers on the joint states",
+            options.wait_subscribers
+        ),
         || Ok(bus.subscriber_count(topics::JointState::ID)? >= options.wait_subscribers),
     )?;
     wait_for("an arm driver subscribing to pose goals", || {

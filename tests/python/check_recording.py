@@ -25,6 +25,8 @@ LOSSLESS = {
     "calibration": "mirror.Calibration.v1",
     "predictions": "mirror.Prediction.v1",
     "located": "mirror.LocatedObject.v1",
+    "joint_positions": "mirror.JointPositions.v1",
+    "pose_goal": "mirror.PoseGoal.v1",
 }
 VIEW = {
     "/camera/left/image": RawImage,

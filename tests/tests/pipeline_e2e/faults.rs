@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::*;
 use messages::topics::TopicId;
 use messages::{
-    Bus, CameraMarkers, Encoding, FrameHeader, JointState, Marker, MirrorSample, Phase, Role,
-    StereoDetections, now_ns, topics,
+    Bus, CameraMarkers, Encoding, FrameHeader, JointPositions, JointState, Marker, MirrorSample,
+    Phase, PoseGoal, Role, StereoDetections, now_ns, topics,
 };
 use mirror_proc::calibrate::Method;
 use serde_json::Value;
@@ -314,11 +314,11 @@ fn a_mirror_stage_killed_twice_resumes_from_its_journal_and_loses_nothing() {
     );
 }
 
-/// The arm's driver killed mid-run: the restarted one takes up the plan
-/// after the last pose it reached, so no pose is held twice, and the plan
-/// completes.
+/// The stage that owns the pose plan killed mid-run: the restarted one takes
+/// up the plan after the last pose the arm settled at, so no pose is held
+/// twice, and the plan completes.
 #[test]
-fn a_killed_arm_driver_resumes_its_plan_and_repeats_no_pose() {
+fn a_killed_kinematics_stage_resumes_its_plan_and_repeats_no_pose() {
     let mut run = Launcher::start("arm_journal", true);
     let prefix = run.prefix.clone();
     run.wait_paired(4);
@@ -410,6 +410,7 @@ fn a_killed_launcher_takes_its_stages_down_and_the_recording_is_finished() {
         "camera_proc",
         "tracker_proc",
         "kinematics_proc",
+        "sim_arm",
         "mirror_proc",
         "recorder",
     ];
@@ -440,10 +441,12 @@ const BURSTS: u64 = 4;
 
 /// Publishes malformed messages of every kind on `prefix`'s input topics:
 /// frames through iceoryx2 directly (sizes the `Bus` would not let through),
-/// joint states and detections through the `Bus`.
+/// joint states, joint positions, pose goals and detections through the `Bus`.
 fn rogue(prefix: &str) {
     let bus = Bus::new(prefix, "rogue").unwrap();
     let joints = bus.publisher::<topics::JointState>().unwrap();
+    let positions = bus.publisher::<topics::JointPositions>().unwrap();
+    let goals = bus.publisher::<topics::PoseGoal>().unwrap();
     let detections = bus.publisher::<topics::Detections>().unwrap();
     let node = NodeBuilder::new().create::<ipc::Service>().unwrap();
     let name = |s: String| ServiceName::new(&s).unwrap();
@@ -556,6 +559,32 @@ fn rogue(prefix: &str) {
             })
             .unwrap();
         joints.send(state(past)).unwrap();
+        // Joint positions: non-finite, too many joints, a stamp gone back;
+        // a pose goal for another arm.
+        let reading = |stamp_ns| JointPositions {
+            stamp_ns,
+            dof: 4,
+            ..Default::default()
+        };
+        positions
+            .send(JointPositions {
+                q: [f64::NAN; 8],
+                ..reading(now)
+            })
+            .unwrap();
+        positions
+            .send(JointPositions {
+                dof: 9,
+                ..reading(now)
+            })
+            .unwrap();
+        positions.send(reading(past)).unwrap();
+        goals
+            .send(PoseGoal {
+                dof: 7,
+                ..Default::default()
+            })
+            .unwrap();
         // Detections: a non-finite corner, too many markers, an id out of
         // range, a stamp gone back, a stamp an hour ahead.
         detections
@@ -610,11 +639,11 @@ fn malformed_messages_are_dropped_counted_and_harmless() {
         (5 * k..=5 * k + 3).contains(&tracker),
         "tracker rejected {tracker}"
     );
-    let camera = counter(&placement, "camera_proc", "joint_states_rejected");
-    assert!(
-        (4 * k..=4 * k + 3).contains(&camera),
-        "camera rejected {camera}"
-    );
+    // Three bad joint positions and one bad goal a burst.
+    let camera = counter(&placement, "camera_proc", "arm_messages_rejected");
+    assert_eq!(camera, 4 * k, "camera rejected {camera}");
+    let kinematics = counter(&placement, "kinematics_proc", "joint_positions_rejected");
+    assert_eq!(kinematics, 3 * k, "kinematics_proc rejected {kinematics}");
     // Five bad detections and four bad joint states a burst, the joint
     // state and the frame's detections from the future.
     let mirror = placement["report"]["counters"]["rejected"]
@@ -625,13 +654,15 @@ fn malformed_messages_are_dropped_counted_and_harmless() {
     for what in [
         "dropping a frame",
         "dropping a joint state",
+        "dropping a joint positions message",
+        "dropping a pose goal",
         "dropping a detection",
     ] {
         assert!(log.contains(what), "no `{what}` warning in the stages' log");
     }
     assert!(!log.contains("panicked"), "a stage panicked");
     eprintln!(
-        "rogue: tracker rejected {tracker}, camera {camera}, mirror stage {mirror}; plane {} deg",
+        "rogue: tracker rejected {tracker}, camera {camera}, kinematics {kinematics}, mirror stage {mirror}; plane {} deg",
         placement["plane_angle_deg"]
     );
     // The recorder kept every message, the rogue ones too.

@@ -159,6 +159,10 @@ fn replay_into(kind: &str, dir: &Path) -> PathBuf {
     b
 }
 
+/// The arm driver's topics: upstream of the joint states a replay
+/// publishes, so a replay does not make them again.
+const ARM_DRIVER: [TopicId; 2] = [TopicId::JointPositions, TopicId::PoseGoal];
+
 fn assert_same(
     a: &BTreeMap<TopicId, Vec<Vec<u8>>>,
     b: &BTreeMap<TopicId, Vec<Vec<u8>>>,
@@ -218,11 +222,11 @@ fn record_a_equals_replay_of_its_frames_through_tracker_and_mirror_stage() {
     let a_path = recording_a();
     let b_path = replay_into("frames", dir.path());
     let (a, b) = (lossless(&a_path), lossless(&b_path));
-    for topic in TopicId::ALL {
+    for topic in TopicId::ALL.into_iter().filter(|t| !ARM_DRIVER.contains(t)) {
         assert_same(&a, &b, topic);
     }
     // The viewing channels too: images, overlays, transforms, scene.
-    assert_channels_equal(&a_path, &b_path, &[]);
+    assert_channels_equal(&a_path, &b_path, &ARM_DRIVER.map(TopicId::name));
 }
 
 #[test]
@@ -232,10 +236,19 @@ fn record_a_equals_replay_of_its_detections_through_the_mirror_stage() {
     let b_path = replay_into("detections", dir.path());
     let (a, b) = (lossless(&a_path), lossless(&b_path));
     assert!(!b.contains_key(&TopicId::Frames));
-    for topic in TopicId::ALL.into_iter().filter(|t| *t != TopicId::Frames) {
+    for topic in TopicId::ALL
+        .into_iter()
+        .filter(|t| *t != TopicId::Frames && !ARM_DRIVER.contains(t))
+    {
         assert_same(&a, &b, topic);
     }
-    let images = ["frames", "/camera/left/image", "/camera/right/image"];
+    let images = [
+        "frames",
+        "/camera/left/image",
+        "/camera/right/image",
+        "joint_positions",
+        "pose_goal",
+    ];
     assert_channels_equal(&a_path, &b_path, &images);
     // Two replays: identical channels again (only publish times, chunk
     // boundaries and the interleaving of channels differ between files).
