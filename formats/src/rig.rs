@@ -402,6 +402,23 @@ fn parse_dh(path: &Path, rows: &[JointEntry]) -> Result<Vec<DhJoint>, FormatErro
     Ok(joints)
 }
 
+/// The files a rig file refers to (camera calibration files, the URDF),
+/// resolved against its folder: what a copy of the rig needs beside it.
+pub fn referenced_files(path: impl AsRef<Path>) -> Result<Vec<std::path::PathBuf>, FormatError> {
+    let path = path.as_ref();
+    let text = read_text(path)?;
+    let file: RigFile =
+        toml::from_str(&text).map_err(|e| FormatError::new(path, None, e.message()))?;
+    let dir = path.parent().unwrap_or(Path::new(""));
+    Ok(file
+        .camera
+        .iter()
+        .filter_map(|c| c.calibration.as_deref())
+        .chain(file.arm.as_ref().and_then(|a| a.urdf.as_deref()))
+        .map(|f| dir.join(f))
+        .collect())
+}
+
 /// Renders a rig as TOML.
 pub fn to_toml(rig: &Rig) -> String {
     let camera = rig

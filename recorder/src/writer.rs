@@ -102,7 +102,9 @@ impl WriterOptions {
     }
 
     /// Reads the rig at `path`, stores its text as the `rig` metadata
-    /// record and the file as the attachment `rig.toml`, and returns it.
+    /// record and the file as the attachment `rig.toml`, and attaches the
+    /// files it refers to (calibration files, URDF) under their names, so
+    /// the recording holds the whole robot description. Returns the rig.
     pub fn attach_rig(&mut self, path: &Path) -> Result<geometry::Rig, formats::FormatError> {
         let rig = formats::rig::read(path)?;
         let text = formats::read_text(path)?;
@@ -110,6 +112,9 @@ impl WriterOptions {
             .push(("rig".into(), BTreeMap::from([("toml".into(), text)])));
         self.attachments
             .push(("rig.toml".into(), path.to_path_buf()));
+        for file in formats::rig::referenced_files(path)? {
+            self.attach(&file);
+        }
         Ok(rig)
     }
 
@@ -583,5 +588,29 @@ impl Mcap {
             .finish()
             .map(|_summary| ())
             .map_err(self.failed("finishing the file (summary and index)"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_rig_is_attached_with_the_files_it_refers_to() {
+        let rig =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/rigs/nico_urdf/rig.toml");
+        let mut options = WriterOptions::default();
+        let read = options.attach_rig(&rig).unwrap();
+        assert_eq!(read.arm.unwrap().dof(), 4);
+        let names: Vec<&str> = options
+            .attachments
+            .iter()
+            .map(|(n, _)| n.as_str())
+            .collect();
+        assert_eq!(
+            names,
+            ["rig.toml", "left.yaml", "right.yaml", "nico_arm.urdf"]
+        );
+        assert!(options.attachments.iter().all(|(_, p)| p.exists()));
     }
 }
