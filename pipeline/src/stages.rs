@@ -242,6 +242,7 @@ pub fn subscribers_of<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::Path;
 
     #[test]
     fn command_lines_follow_the_typed_arguments() {
@@ -265,8 +266,35 @@ mod tests {
             camera.argv("p").join(" "),
             "sim --prefix p --mirror 2 --fps 30"
         );
-        let stages = [mirror, StageArgs::Tracker, camera];
-        assert_eq!(subscribers_of(&stages, TopicId::JointState), 2);
+        let sim_arm = StageArgs::ArmDriver {
+            rig: "r.toml".into(),
+            command: None,
+            move_ms: 120,
+        };
+        assert_eq!(sim_arm.binary(), "sim_arm");
+        assert_eq!(
+            sim_arm.argv("p").join(" "),
+            "--prefix p --rig r.toml --move-ms 120"
+        );
+        // A user's driver: its own words first, then only --prefix and --rig.
+        let theirs = StageArgs::ArmDriver {
+            rig: "r.toml".into(),
+            command: Some(shell_words::split("py 'my driver.py' -v").unwrap()),
+            move_ms: 120,
+        };
+        assert_eq!(theirs.program(Path::new("bin")), PathBuf::from("py"));
+        assert_eq!(
+            theirs.argv("p"),
+            ["my driver.py", "-v", "--prefix", "p", "--rig", "r.toml"]
+        );
+        assert_eq!(
+            sim_arm.program(Path::new("bin")),
+            PathBuf::from("bin/sim_arm")
+        );
+        let stages = [mirror, StageArgs::Tracker, camera, sim_arm];
+        assert_eq!(subscribers_of(&stages, TopicId::JointState), 1);
+        assert_eq!(subscribers_of(&stages, TopicId::JointPositions), 1);
+        assert_eq!(subscribers_of(&stages, TopicId::PoseGoal), 2);
         assert_eq!(subscribers_of(&stages, TopicId::Frames), 1);
         assert_eq!(subscribers_of(&stages, TopicId::Samples), 0);
     }
