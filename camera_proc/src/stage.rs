@@ -85,11 +85,13 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
             }
             let h = header(seq, intr.width, intr.height);
             let _span = tracing::trace_span!("camera_step", seq).entered();
+            let cpu = messages::stats::StepStart::now();
             frames.publish(h, |left, right| {
                 renderer
                     .render(state.joints(), facing(role), seq, left, right)
                     .map(|_| true)
             })??;
+            stats.cpu_step(cpu);
             // The simulated capture: the frame's stamp to its publication (rendering).
             let published = now_ns();
             stats.record("capture_to_publish", published - h.stamp_ns);
@@ -121,19 +123,25 @@ pub fn run_source(prefix: &str, mut source: impl StereoSource, fps: Option<f64>)
     let (w, h) = source.size();
     let bus = Bus::new(prefix, "camera_proc")?;
     let frames = bus.frame_publisher::<topics::Frames>(2 * (w * h) as usize)?;
+    let mut stats = messages::stats::StageStats::new("camera_proc");
     let mut seq = 0u64;
     let tick = fps
         .map(|f| Duration::from_secs_f64(1.0 / f))
         .unwrap_or(Duration::from_millis(1));
     bus.wake()?.run(&[], Some(tick), || -> Result<_> {
+        let cpu = messages::stats::StepStart::now();
         let more = frames.publish(header(seq, w, h), |left, right| {
             source.next_into(left, right)
         })??;
+        stats.cpu_step(cpu);
         seq += 1;
         Ok(if more {
             ControlFlow::Continue(())
         } else {
             ControlFlow::Break(())
         })
-    })
+    })?;
+    stats.count("frames", seq);
+    stats.finish();
+    Ok(())
 }

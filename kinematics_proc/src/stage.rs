@@ -137,6 +137,7 @@ pub fn drive(
                 }
                 last_heard = Instant::now();
                 let _span = tracing::trace_span!("kinematics_step", seq = p.seq).entered();
+                let cpu = messages::stats::StepStart::now();
                 let step = follower.step(&p, arm)?;
                 if let Some(ns) = step.settled_after_ns {
                     stats.record("goal_to_settled", ns);
@@ -148,6 +149,7 @@ pub fn drive(
                 }
                 states.send(step.state).context("publishing joint states")?;
                 published += 1;
+                stats.cpu_step(cpu);
                 if let Some(goal) = step.goal {
                     goals.send(goal)?;
                     last_sent = Instant::now();
@@ -191,8 +193,10 @@ pub fn run_sim_arm(prefix: &str, home: Vec<f64>, move_ns: i64, tick: Duration) -
     let goals = bus.subscriber::<topics::PoseGoal>()?;
     let mut arm = SimArm::new(home, move_ns);
     let mut rejections = messages::Rejections::default();
+    let mut stats = messages::stats::StageStats::new("sim_arm");
     let mut seq = 0u64;
     bus.wake()?.run(&[], Some(tick), || -> Result<_> {
+        let cpu = messages::stats::StepStart::now();
         let now = now_ns();
         let mut finished = false;
         while let Some(goal) = goals.receive()? {
@@ -211,12 +215,15 @@ pub fn run_sim_arm(prefix: &str, home: Vec<f64>, move_ns: i64, tick: Duration) -
         msg.q[..dof].copy_from_slice(&arm.at(now));
         positions.send(msg)?;
         seq += 1;
+        stats.cpu_step(cpu);
         Ok(if finished {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
         })
     })?;
+    stats.count("pose_goals_rejected", rejections.count());
+    stats.finish();
     tracing::info!(positions = seq, "plan finished");
     Ok(())
 }

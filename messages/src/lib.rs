@@ -124,6 +124,7 @@ pub fn now_ns() -> i64 {
 /// [`trace`]). `name` names the process in the trace.
 pub fn init_logging(name: &str) {
     use tracing_subscriber::prelude::*;
+    stats::mark_process_start();
     let fmt = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))

@@ -1,9 +1,15 @@
-//! Per-stage timing and drop counters: each stage records its latencies in
-//! HDR histograms and, on exit, logs a summary and writes it as JSON into
-//! `MIRROR_STATS_DIR` (set by the launcher), which prints them as one table.
+//! Per-stage timing, CPU and drop counters: each stage records its
+//! latencies and the CPU time of its steps (the thread's CPU clock) in HDR
+//! histograms and, on exit, logs a summary with its process's share of a
+//! core and writes it as JSON into `MIRROR_STATS_DIR` (set by the
+//! launcher), which prints them as tables.
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use cpu_time::{ProcessTime, ThreadTime};
 
 use hdrhistogram::Histogram;
 use serde::{Deserialize, Serialize};
@@ -26,6 +32,20 @@ pub struct LatencySummary {
     pub max_ms: f64,
 }
 
+/// Where a stage process's CPU went.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CpuSummary {
+    /// CPU time of each step on the thread that ran it, ms (absent for a
+    /// stage without steps).
+    pub per_step: Option<LatencySummary>,
+    /// CPU time of the whole process (every thread), ms.
+    pub process_ms: f64,
+    /// Wall time from the process's start to its summary, ms.
+    pub wall_ms: f64,
+    /// `process_ms / wall_ms`: the share of one core the process used.
+    pub core_share: f64,
+}
+
 /// What one stage process measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StageSummary {
@@ -37,6 +57,38 @@ pub struct StageSummary {
     pub latencies: BTreeMap<String, LatencySummary>,
     /// Counters by name, e.g. `frames_missed`.
     pub counters: BTreeMap<String, u64>,
+    /// CPU per step and over the run (absent in summaries of older builds).
+    #[serde(default)]
+    pub cpu: Option<CpuSummary>,
+}
+
+static PROCESS_STARTED: OnceLock<Instant> = OnceLock::new();
+
+/// Marks the start of this process for [`CpuSummary::wall_ms`]
+/// ([`crate::init_logging`] calls it; later calls change nothing).
+pub fn mark_process_start() {
+    PROCESS_STARTED.get_or_init(Instant::now);
+}
+
+/// The start of one step on this thread's CPU clock: pass it to
+/// [`StageStats::cpu_step`] when the step is done.
+#[derive(Debug, Clone, Copy)]
+pub struct StepStart(Duration);
+
+impl StepStart {
+    /// Now, on this thread's CPU clock.
+    pub fn now() -> Self {
+        Self(thread_cpu())
+    }
+}
+
+/// This thread's CPU time so far (zero if the clock cannot be read).
+pub fn thread_cpu() -> Duration {
+    ThreadTime::try_now().map_or(Duration::ZERO, |t| t.as_duration())
+}
+
+fn histogram() -> Histogram<u64> {
+    Histogram::new_with_bounds(1, 60_000_000, 3).expect("valid histogram bounds")
 }
 
 /// A stage's histograms (microsecond resolution, up to a minute, 3
@@ -45,24 +97,33 @@ pub struct StageStats {
     stage: String,
     histograms: BTreeMap<String, Histogram<u64>>,
     counters: BTreeMap<String, u64>,
+    cpu_steps: Option<Histogram<u64>>,
 }
 
 impl StageStats {
     /// Empty stats for `stage`.
     pub fn new(stage: &str) -> Self {
+        mark_process_start();
         Self {
             stage: stage.into(),
             histograms: BTreeMap::new(),
             counters: BTreeMap::new(),
+            cpu_steps: None,
         }
     }
 
     /// Records one latency of `ns` nanoseconds under `name`.
     pub fn record(&mut self, name: &str, ns: i64) {
-        let h = self.histograms.entry(name.into()).or_insert_with(|| {
-            Histogram::new_with_bounds(1, 60_000_000, 3).expect("valid histogram bounds")
-        });
+        let h = self.histograms.entry(name.into()).or_insert_with(histogram);
         h.saturating_record((ns / 1000).max(1) as u64);
+    }
+
+    /// Records the CPU time this thread spent since `started`, as one step.
+    pub fn cpu_step(&mut self, started: StepStart) {
+        let used = thread_cpu().saturating_sub(started.0);
+        self.cpu_steps
+            .get_or_insert_with(histogram)
+            .saturating_record((used.as_micros() as u64).max(1));
     }
 
     /// Adds `n` to counter `name` (creating it at 0, so it shows).
@@ -72,33 +133,46 @@ impl StageStats {
 
     /// The summary of what was recorded.
     pub fn summary(&self) -> StageSummary {
-        let ms = |us: u64| us as f64 / 1000.0;
+        let wall_ms = PROCESS_STARTED
+            .get()
+            .map_or(0.0, |t| t.elapsed().as_secs_f64() * 1e3);
+        let process_ms =
+            ProcessTime::try_now().map_or(0.0, |t| t.as_duration().as_secs_f64() * 1e3);
         StageSummary {
             stage: self.stage.clone(),
             pid: std::process::id(),
             latencies: self
                 .histograms
                 .iter()
-                .map(|(name, h)| {
-                    (
-                        name.clone(),
-                        LatencySummary {
-                            count: h.len(),
-                            p50_ms: ms(h.value_at_quantile(0.5)),
-                            p90_ms: ms(h.value_at_quantile(0.9)),
-                            p99_ms: ms(h.value_at_quantile(0.99)),
-                            max_ms: ms(h.max()),
-                        },
-                    )
-                })
+                .map(|(name, h)| (name.clone(), percentiles(h)))
                 .collect(),
             counters: self.counters.clone(),
+            cpu: Some(CpuSummary {
+                per_step: self.cpu_steps.as_ref().map(percentiles),
+                process_ms,
+                wall_ms,
+                core_share: if wall_ms > 0.0 {
+                    process_ms / wall_ms
+                } else {
+                    0.0
+                },
+            }),
         }
     }
 
     /// Logs the summary and writes it into `MIRROR_STATS_DIR`, if set.
     pub fn finish(&self) {
         let summary = self.summary();
+        if let Some(cpu) = &summary.cpu {
+            tracing::info!(
+                stage = self.stage,
+                steps = cpu.per_step.as_ref().map_or(0, |s| s.count),
+                step_p50_ms = cpu.per_step.as_ref().map_or(0.0, |s| s.p50_ms),
+                process_ms = cpu.process_ms,
+                core_share = cpu.core_share,
+                "cpu"
+            );
+        }
         for (name, l) in &summary.latencies {
             tracing::info!(
                 stage = self.stage,
@@ -122,6 +196,17 @@ impl StageStats {
                 tracing::warn!("{}: cannot write the stage stats: {e}", path.display());
             }
         }
+    }
+}
+
+fn percentiles(h: &Histogram<u64>) -> LatencySummary {
+    let ms = |us: u64| us as f64 / 1000.0;
+    LatencySummary {
+        count: h.len(),
+        p50_ms: ms(h.value_at_quantile(0.5)),
+        p90_ms: ms(h.value_at_quantile(0.9)),
+        p99_ms: ms(h.value_at_quantile(0.99)),
+        max_ms: ms(h.max()),
     }
 }
 
@@ -155,5 +240,29 @@ mod tests {
         assert!((l.p99_ms - 99.0).abs() < 0.1, "{l:?}");
         assert!((l.max_ms - 100.0).abs() < 0.1, "{l:?}");
         assert_eq!(s.summary().counters["dropped"], 2);
+    }
+
+    #[test]
+    fn cpu_per_step_is_the_threads_cpu_time_and_sleep_costs_none() {
+        let mut s = StageStats::new("t");
+        for _ in 0..5 {
+            let t = StepStart::now();
+            // About 20 ms of work, then a sleep that uses no CPU.
+            let began = Instant::now();
+            let mut x = 0u64;
+            while began.elapsed() < Duration::from_millis(20) {
+                x = std::hint::black_box(x.wrapping_mul(31).wrapping_add(7));
+            }
+            std::thread::sleep(Duration::from_millis(30));
+            s.cpu_step(t);
+        }
+        let cpu = s.summary().cpu.unwrap();
+        let steps = cpu.per_step.clone().unwrap();
+        assert_eq!(steps.count, 5);
+        // Busy 20 ms a step: at most that on the CPU (less if preempted),
+        // and the 30 ms asleep is not counted.
+        assert!(steps.p50_ms > 5.0 && steps.p50_ms < 25.0, "{steps:?}");
+        assert!(cpu.process_ms >= 5.0 * 5.0, "{cpu:?}");
+        assert!(cpu.wall_ms >= 250.0 && cpu.core_share < 1.0, "{cpu:?}");
     }
 }

@@ -34,6 +34,8 @@ pub struct ChromeLayer {
 
 struct SpanData {
     start_ns: i64,
+    /// This thread's CPU clock when the span opened.
+    start_cpu: std::time::Duration,
     args: serde_json::Map<String, serde_json::Value>,
 }
 
@@ -98,6 +100,7 @@ impl<S: Subscriber + for<'a> LookupSpan<'a>> Layer<S> for ChromeLayer {
     fn on_new_span(&self, attrs: &Attributes<'_>, id: &Id, ctx: Context<'_, S>) {
         let mut data = SpanData {
             start_ns: crate::now_ns(),
+            start_cpu: crate::stats::thread_cpu(),
             args: serde_json::Map::new(),
         };
         attrs.record(&mut Args(&mut data.args));
@@ -121,6 +124,14 @@ impl<S: Subscriber + for<'a> LookupSpan<'a>> Layer<S> for ChromeLayer {
         let Some(data) = extensions.get::<SpanData>() else {
             return;
         };
+        // Spans open and close on one thread (`.entered()` guards), so the
+        // thread's CPU clock tells what the step cost.
+        let cpu_ms = crate::stats::thread_cpu()
+            .saturating_sub(data.start_cpu)
+            .as_secs_f64()
+            * 1e3;
+        let mut args = data.args.clone();
+        args.insert("cpu_ms".into(), cpu_ms.into());
         self.write(&serde_json::json!({
             "name": span.name(),
             "cat": span.metadata().target(),
@@ -129,7 +140,15 @@ impl<S: Subscriber + for<'a> LookupSpan<'a>> Layer<S> for ChromeLayer {
             "dur": (end - data.start_ns) as f64 / 1e3,
             "pid": self.pid,
             "tid": thread_id(),
-            "args": data.args,
+            "args": args,
+        }));
+        // The same as a counter track per process: CPU ms of each step.
+        self.write(&serde_json::json!({
+            "name": "cpu_ms",
+            "ph": "C",
+            "ts": end as f64 / 1e3,
+            "pid": self.pid,
+            "args": { span.name(): cpu_ms },
         }));
     }
 }

@@ -156,10 +156,13 @@ pub fn run(
         &[joints.listener(), detections.listener()],
         None,
         || -> Result<_> {
+            let cpu = messages::stats::StepStart::now();
             let mut ready = Vec::new();
             let mut received_ns = Vec::new();
             let mut frames_published_ns = Vec::new();
+            let mut took = false;
             while let Some(js) = joints.receive()? {
+                took = true;
                 ready.extend(live.push_joint_state(js));
             }
             while let Some(d) = detections.receive()? {
@@ -182,6 +185,7 @@ pub fn run(
             // publishing (the wait in the merge for the joint states to
             // pass it shows in capture_to_sample).
             let now = now_ns();
+            took |= !received_ns.is_empty();
             for r in received_ns {
                 stats.record("receive_to_publish", now - r);
             }
@@ -189,6 +193,10 @@ pub fn run(
             // publication by the camera to the end of this wake.
             for p in frames_published_ns {
                 stats.record("frame_to_processed", now - p);
+            }
+            // A step: one wake that had messages to take.
+            if took {
+                stats.cpu_step(cpu);
             }
             Ok(if live.finished() {
                 ControlFlow::Break(())

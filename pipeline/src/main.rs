@@ -138,6 +138,7 @@ fn run(args: Args) -> Result<()> {
     } else {
         print!("{}", report::table(&results, run.config.method));
         print!("{}", report::latency_table(&results));
+        print!("{}", report::cpu_table(&results));
         println!(
             "report: {}  (per placement: {}/mirror<i>/{{report.json, recording.mcap, rig.toml, \
              plan.csv, stages.log, journal.mcap, arm_journal.mcap}})",

@@ -129,6 +129,55 @@ pub fn latency_table(results: &[PlacementResult]) -> String {
     s
 }
 
+/// Where the CPU went, per stage: each step's CPU time on its thread, and
+/// the process's CPU over its run as a share of one core.
+pub fn cpu_table(results: &[PlacementResult]) -> String {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut s = format!(
+        "\nCPU per stage: thread CPU per step, ms; process CPU as a share of one core ({cores} cores)\n"
+    );
+    s += &format!(
+        "  {:<10} {:<16} {:>7} {:>8} {:>8} {:>11}\n",
+        "placement", "stage", "steps", "median", "p99", "core share"
+    );
+    for r in results {
+        let mut total = 0.0;
+        for stage in &r.stages {
+            let Some(cpu) = &stage.cpu else { continue };
+            let (steps, median, p99) = cpu.per_step.as_ref().map_or(
+                ("-".to_string(), "-".to_string(), "-".to_string()),
+                |p| {
+                    (
+                        p.count.to_string(),
+                        format!("{:.2}", p.p50_ms),
+                        format!("{:.2}", p.p99_ms),
+                    )
+                },
+            );
+            total += cpu.core_share;
+            s += &format!(
+                "  {:<10} {:<16} {:>7} {:>8} {:>8} {:>9.1} %\n",
+                format!("mirror {}", r.mirror),
+                stage.stage,
+                steps,
+                median,
+                p99,
+                100.0 * cpu.core_share
+            );
+        }
+        s += &format!(
+            "  {:<10} {:<16} {:>7} {:>8} {:>8} {:>9.1} %\n",
+            format!("mirror {}", r.mirror),
+            "all stages",
+            "",
+            "",
+            "",
+            100.0 * total
+        );
+    }
+    s
+}
+
 pub fn table(results: &[PlacementResult], method: Method) -> String {
     let mut s = format!(
         "Live pipeline, method {method}: mean errors on the test poses of each placement\n"

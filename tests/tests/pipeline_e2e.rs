@@ -182,6 +182,54 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
     };
     assert!(!spans("kinematics_step").is_empty());
     assert!(!spans("calibrate").is_empty());
+    // Each step's CPU time: in the span's args and as a counter track.
+    for step in [
+        "camera_step",
+        "tracker_step",
+        "mirror_step",
+        "kinematics_step",
+    ] {
+        let counters = events
+            .iter()
+            .filter(|e| e["ph"] == "C" && e["name"] == "cpu_ms" && e["args"].get(step).is_some())
+            .count();
+        assert_eq!(
+            counters,
+            spans(step).len(),
+            "{step}: one CPU counter per span"
+        );
+        assert!(
+            spans(step)
+                .iter()
+                .all(|e| e["args"]["cpu_ms"].as_f64().is_some_and(|c| c >= 0.0))
+        );
+    }
+    // And the stages' CPU in the report: per step for the stages with
+    // steps, the process's share of a core for every stage.
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(live_run().out.join("report.json")).unwrap())
+            .unwrap();
+    let stages = report["placements"][0]["stages"].as_array().unwrap();
+    for stage in stages {
+        let cpu = &stage["cpu"];
+        let share = cpu["core_share"].as_f64().unwrap();
+        assert!(share > 0.0 && share < 1.5, "{stage}");
+        let name = stage["stage"].as_str().unwrap();
+        if [
+            "camera_proc",
+            "tracker_proc",
+            "mirror_proc",
+            "kinematics_proc",
+        ]
+        .contains(&name)
+        {
+            let steps = cpu["per_step"]["count"].as_u64().unwrap();
+            assert!(steps > 0, "{name}: {cpu}");
+            // A step's CPU never exceeds its process's CPU over the run.
+            let p99 = cpu["per_step"]["p99_ms"].as_f64().unwrap();
+            assert!(p99 <= cpu["process_ms"].as_f64().unwrap(), "{name}: {cpu}");
+        }
+    }
     // Every frame the mirror stage handled: camera, then tracker, then mirror
     // stage, each in its own process, in that order on the shared clock.
     let mirror_steps = spans("mirror_step");

@@ -77,10 +77,12 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
         .run(&[frames.listener()], None, || -> Result<_> {
             loop {
                 let received_ns = now_ns();
+                let cpu = messages::stats::StepStart::now();
                 let Some(tracked) = frames.receive_with(|h, payload| tracker.step(h, payload))?
                 else {
                     return Ok(ControlFlow::Continue(()));
                 };
+                stats.cpu_step(cpu);
                 if let Tracked::Detections(det) = tracked? {
                     publisher.send(det)?;
                     let now = now_ns();
