@@ -12,6 +12,7 @@
 //! cleanly.
 
 mod config;
+mod replay;
 mod report;
 mod run;
 mod stages;
@@ -72,10 +73,37 @@ struct Args {
     /// What to print at the end: the tables, or the whole report as JSON.
     #[arg(long, value_enum, default_value_t = ReportFormat::Table)]
     report: ReportFormat,
+    /// Re-run the stages downstream of `--kind` on this recording (with the
+    /// rig, plan and config it holds) instead of the simulated robot; the
+    /// outputs go into OUT directly (`recording.mcap`, `report.json`, ...).
+    #[arg(long, value_name = "FILE")]
+    replay: Option<PathBuf>,
+    /// With --replay: what to replay: `frames` re-runs the tracker and the
+    /// mirror stage, `detections` the mirror stage.
+    #[arg(long, value_enum, default_value_t = ReplayKind::Frames, requires = "replay")]
+    kind: ReplayKind,
     /// Trace every stage step of every process into
     /// `OUT/mirror<i>/trace.json` (Chrome trace format; open it in Perfetto).
     #[arg(long)]
     trace: bool,
+}
+
+/// What `--replay` publishes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ReplayKind {
+    /// Frames and joint states: the tracker and the mirror stage re-run.
+    Frames,
+    /// Detections and joint states: the mirror stage re-runs.
+    Detections,
+}
+
+impl ReplayKind {
+    fn name(self) -> &'static str {
+        match self {
+            ReplayKind::Frames => "frames",
+            ReplayKind::Detections => "detections",
+        }
+    }
 }
 
 /// The form of the final report on stdout.
@@ -91,6 +119,24 @@ fn run(args: Args) -> Result<()> {
     if args.no_record && args.live_view.is_some() {
         bail!("--live-view is served by the recorder: it cannot be used with --no-record");
     }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("{}: cannot create", args.out.display()))?;
+    let replay = match &args.replay {
+        Some(file) => {
+            for (given, flag) in [
+                (args.mirrors.is_some(), "--mirrors"),
+                (args.poses.is_some(), "--poses"),
+                (args.fps.is_some(), "--fps"),
+                (args.arm_driver.is_some(), "--arm-driver"),
+            ] {
+                if given {
+                    bail!("{flag} cannot be used with --replay: the recording fixes it");
+                }
+            }
+            Some((file.clone(), replay::unpack(file, &args.out)?))
+        }
+        None => None,
+    };
     let overrides = Overrides {
         mirrors: args.mirrors,
         train_poses: args.poses,
@@ -98,9 +144,10 @@ fn run(args: Args) -> Result<()> {
         fps: args.fps,
         arm_driver: args.arm_driver,
     };
-    let config = Config::load(&args.config, overrides)?;
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("{}: cannot create", args.out.display()))?;
+    let config_path = replay
+        .as_ref()
+        .map_or(args.config.clone(), |(_, r)| r.config.clone());
+    let config = Config::load(&config_path, overrides)?;
     let bin_dir = std::env::current_exe()?
         .parent()
         .context("no executable directory")?
@@ -111,7 +158,7 @@ fn run(args: Args) -> Result<()> {
         .context("installing the Ctrl-C handler")?;
     let run = Run {
         config,
-        config_path: args.config,
+        config_path,
         out: args.out.clone(),
         bin_dir,
         prefix: args
@@ -122,12 +169,15 @@ fn run(args: Args) -> Result<()> {
         trace: args.trace,
         stop,
     };
-    let results = run
-        .config
-        .mirrors
-        .iter()
-        .map(|&m| run.placement(m))
-        .collect::<Result<Vec<_>>>()?;
+    let results = match &replay {
+        Some((file, unpacked)) => vec![run.replay(file, args.kind.name(), unpacked.mirror)?],
+        None => run
+            .config
+            .mirrors
+            .iter()
+            .map(|&m| run.placement(m))
+            .collect::<Result<Vec<_>>>()?,
+    };
     let path = args.out.join("report.json");
     let json =
         serde_json::json!({ "config": run.config, "paper": PAPER_FIGURES, "placements": results });
@@ -139,12 +189,21 @@ fn run(args: Args) -> Result<()> {
         print!("{}", report::table(&results, run.config.method));
         print!("{}", report::latency_table(&results));
         print!("{}", report::cpu_table(&results));
-        println!(
-            "report: {}  (per placement: {}/mirror<i>/{{report.json, recording.mcap, rig.toml, \
-             plan.csv, stages.log, journal.mcap, arm_journal.mcap}})",
-            path.display(),
-            args.out.display()
-        );
+        if replay.is_some() {
+            println!(
+                "report: {}  (in {}: recording.mcap, mirror_report.json, rig.toml, plan.csv, \
+                 stages.log, journal.mcap; compare with `replay diff`)",
+                path.display(),
+                args.out.display()
+            );
+        } else {
+            println!(
+                "report: {}  (per placement: {}/mirror<i>/{{report.json, recording.mcap, rig.toml, \
+                 plan.csv, stages.log, journal.mcap, arm_journal.mcap}})",
+                path.display(),
+                args.out.display()
+            );
+        }
     }
     // A run that ends without a calibration failed, whatever else it did.
     let uncalibrated: Vec<String> = results

@@ -71,6 +71,21 @@ fn plan_for(config: &Config, mirror: usize) -> Result<(Dataset, Vec<PlannedPose>
     Ok((data, plan))
 }
 
+/// What [`Run::conclude`] needs of a started placement.
+struct Concluding<'a, 'b> {
+    supervisor: Supervisor<'b>,
+    bus: &'a Bus,
+    launch: &'a Launch,
+    mirror: usize,
+    total: usize,
+    time: Duration,
+    dir: &'a Path,
+    stage_report: &'a Path,
+    recording: PathBuf,
+    data: &'a Dataset,
+    started: Instant,
+}
+
 /// Removes what an earlier run left at `path`, if anything.
 fn clear(path: &Path) {
     let _ = std::fs::remove_file(path);
@@ -130,6 +145,7 @@ impl Run {
         if self.record {
             consumers.push(StageArgs::Recorder {
                 out: recording.clone(),
+                no_drop: false,
                 rig: rig.clone(),
                 attach: vec![plan_path.clone(), self.config_path.clone()],
                 meta: vec![
@@ -188,13 +204,146 @@ impl Run {
         }
         supervisor.start(arm)?;
         let plan_seconds = plan.len() as f64 * (config.move_ms + config.dwell_ms) as f64 / 1000.0;
-        let outcome = self.follow(
-            &mut supervisor,
-            &bus,
+        self.conclude(Concluding {
+            supervisor,
+            bus: &bus,
+            launch: &launch,
             mirror,
-            plan.len(),
-            Duration::from_secs_f64(plan_seconds * 3.0 + 60.0),
-        );
+            total: plan.len(),
+            time: Duration::from_secs_f64(plan_seconds * 3.0 + 60.0),
+            dir: &dir,
+            stage_report: &report_path,
+            recording,
+            data: &data,
+            started,
+        })
+    }
+
+    /// Re-runs the stages downstream of `kind` (`frames`: tracker and
+    /// mirror stage; `detections`: the mirror stage) on the recording at
+    /// `file`, recording them into `self.out/recording.mcap`. The rig, plan
+    /// and config are the ones the recording holds (written into
+    /// `self.out` by the caller); `mirror` is its placement.
+    pub fn replay(
+        &self,
+        file: &Path,
+        kind: &'static str,
+        mirror: usize,
+    ) -> Result<PlacementResult> {
+        let config = &self.config;
+        let dir = self.out.clone();
+        let (data, plan) = plan_for(config, mirror)?;
+        let rig = dir.join("rig.toml");
+        let report_path = dir.join("mirror_report.json");
+        let recording = dir.join("recording.mcap");
+        let journal = dir.join("journal.mcap");
+        let launch = Launch {
+            bin_dir: self.bin_dir.clone(),
+            prefix: self.prefix.clone(),
+            log: dir.join("stages.log"),
+            trace_dir: self.trace.then(|| dir.join("trace")),
+            stats_dir: dir.join("stats"),
+        };
+        for stale in [
+            &report_path,
+            &journal,
+            &launch.log,
+            &launch.stats_dir,
+            &recording,
+        ]
+        .into_iter()
+        .chain(&launch.trace_dir)
+        {
+            clear(stale);
+        }
+        let started = Instant::now();
+        let bus = Bus::new(&launch.prefix, "pipeline")?;
+        let mut supervisor = Supervisor::new(&launch);
+        let replayed = match kind {
+            "frames" => [TopicId::Frames, TopicId::JointState],
+            _ => [TopicId::Detections, TopicId::JointState],
+        };
+        supervisor.start(StageArgs::Replay {
+            file: file.to_path_buf(),
+            kind,
+            wait_subscribers: 1 + usize::from(self.record),
+        })?;
+        // Replay creates its topics' services lossless (publishers wait for
+        // the slowest subscriber); nothing may create them before it does.
+        let waited = Instant::now();
+        while !replayed
+            .iter()
+            .all(|t| bus.service_exists(*t).unwrap_or(false))
+        {
+            if waited.elapsed() > READY_WITHIN || !supervisor.is_running("replay") {
+                supervisor.stop();
+                bail!("replay did not create its services ({})", see(&launch.log));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let _services = bus.open_all()?;
+        let mut stages = Vec::new();
+        if self.record {
+            stages.push(StageArgs::Recorder {
+                out: recording.clone(),
+                no_drop: true,
+                rig: rig.clone(),
+                attach: vec![dir.join("plan.csv"), self.config_path.clone()],
+                meta: vec![
+                    ("mirror".into(), mirror.to_string()),
+                    ("method".into(), config.method.to_string()),
+                    ("fps".into(), config.fps.to_string()),
+                    ("replay_of".into(), file.display().to_string()),
+                    ("replay_kind".into(), kind.into()),
+                ],
+                live_view: self.live_view,
+            });
+        }
+        stages.push(StageArgs::Mirror {
+            rig: rig.clone(),
+            method: config.method,
+            min_train: config.min_train,
+            report: report_path.clone(),
+            journal,
+        });
+        if kind == "frames" {
+            stages.push(StageArgs::Tracker);
+        }
+        for stage in stages {
+            supervisor.start(stage)?;
+        }
+        self.conclude(Concluding {
+            supervisor,
+            bus: &bus,
+            launch: &launch,
+            mirror,
+            total: plan.len(),
+            time: Duration::from_secs(600),
+            dir: &dir,
+            stage_report: &report_path,
+            recording,
+            data: &data,
+            started,
+        })
+    }
+
+    /// Follows a placement's stages until the run ends, stops them, and
+    /// reads and evaluates the mirror stage's report.
+    fn conclude(&self, c: Concluding<'_, '_>) -> Result<PlacementResult> {
+        let Concluding {
+            mut supervisor,
+            bus,
+            launch,
+            mirror,
+            total,
+            time,
+            dir,
+            stage_report: report_path,
+            recording,
+            data,
+            started,
+        } = c;
+        let outcome = self.follow(&mut supervisor, bus, mirror, total, time);
         let recorded = supervisor.is_running("recorder");
         let stopped = supervisor.stop();
         for line in &stopped.unclean {
@@ -218,11 +367,11 @@ impl Run {
             );
         }
         let report: LiveReport = serde_json::from_str(
-            &std::fs::read_to_string(&report_path)
+            &std::fs::read_to_string(report_path)
                 .with_context(|| format!("{}: missing", report_path.display()))?,
         )
         .with_context(|| format!("{}: unreadable", report_path.display()))?;
-        let truth = TruthErrors::of(&report, &data, &SimWorld::nico(mirror)?);
+        let truth = TruthErrors::of(&report, data, &SimWorld::nico(mirror)?);
         Ok(PlacementResult {
             mirror,
             report,

@@ -32,6 +32,8 @@ pub enum StageArgs {
     Recorder {
         /// The recording.
         out: PathBuf,
+        /// Never drop a frame (a replay waits for the recorder instead).
+        no_drop: bool,
         /// The rig, for the viewing channels and as an attachment.
         rig: PathBuf,
         /// More files to attach.
@@ -63,6 +65,16 @@ pub enum StageArgs {
         /// Frame rate, Hz.
         fps: f64,
     },
+    /// `replay`: a recording's frames or detections, and its joint states,
+    /// back onto the topics, in lockstep with the slowest subscriber.
+    Replay {
+        /// The recording.
+        file: PathBuf,
+        /// `frames` or `detections`.
+        kind: &'static str,
+        /// Subscribers each replayed topic waits for.
+        wait_subscribers: usize,
+    },
     /// The arm driver: `sim_arm`, or the user's command.
     ArmDriver {
         /// The rig.
@@ -93,6 +105,7 @@ impl StageArgs {
     pub fn binary(&self) -> &'static str {
         match self {
             StageArgs::ArmDriver { command: None, .. } => "sim_arm",
+            StageArgs::Replay { .. } => "replay",
             StageArgs::ArmDriver { .. } => "arm_driver",
             StageArgs::Recorder { .. } => "recorder",
             StageArgs::Mirror { .. } => "mirror_proc",
@@ -110,6 +123,7 @@ impl StageArgs {
             StageArgs::Tracker => &[TopicId::Frames],
             StageArgs::Camera { .. } => &[TopicId::JointPositions, TopicId::PoseGoal],
             StageArgs::ArmDriver { .. } => &[TopicId::PoseGoal],
+            StageArgs::Replay { .. } => &[],
             StageArgs::Kinematics { .. } => &[TopicId::JointPositions],
         }
     }
@@ -131,6 +145,7 @@ impl StageArgs {
         let path = |p: &PathBuf| p.display().to_string();
         let mut argv: Vec<String> = match self {
             StageArgs::Recorder { .. } | StageArgs::Kinematics { .. } => vec![],
+            StageArgs::Replay { file, .. } => vec![path(file)],
             StageArgs::ArmDriver { command, .. } => {
                 command.as_ref().map_or_else(Vec::new, |w| w[1..].to_vec())
             }
@@ -142,6 +157,7 @@ impl StageArgs {
         match self {
             StageArgs::Recorder {
                 out,
+                no_drop,
                 rig,
                 attach,
                 meta,
@@ -159,6 +175,9 @@ impl StageArgs {
                     flag("live-view", port.to_string());
                 }
                 argv.push("--overwrite".into());
+                if *no_drop {
+                    argv.push("--no-drop".into());
+                }
             }
             StageArgs::Mirror {
                 rig,
@@ -174,6 +193,15 @@ impl StageArgs {
                 flag("journal", path(journal));
             }
             StageArgs::Tracker => {}
+            StageArgs::Replay {
+                kind,
+                wait_subscribers,
+                ..
+            } => {
+                flag("kind", kind.to_string());
+                flag("pace", "lockstep".into());
+                flag("wait-subscribers", wait_subscribers.to_string());
+            }
             StageArgs::Camera { mirror, fps } => {
                 flag("mirror", mirror.to_string());
                 flag("fps", fps.to_string());
@@ -215,6 +243,9 @@ impl StageArgs {
             StageArgs::Camera { .. } | StageArgs::Kinematics { .. } => RestartPolicy::Finishes,
             // It stops when the plan is finished, or is stopped with the run.
             StageArgs::ArmDriver { .. } => RestartPolicy::Finishes,
+            // A failed replay started again publishes from the start; the
+            // mirror stage drops what it has seen (stamps not moving on).
+            StageArgs::Replay { .. } => RestartPolicy::Finishes,
         }
     }
 

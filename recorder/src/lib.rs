@@ -20,6 +20,7 @@
 
 pub mod capture;
 pub mod channels;
+pub mod diff;
 pub mod live_view;
 pub mod reader;
 pub mod replay;

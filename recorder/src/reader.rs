@@ -25,7 +25,7 @@ impl ReadError {
     /// The error for `path`. Text taken from the file (channel names, a
     /// parser's message) is kept on one line: control characters are
     /// escaped.
-    fn new(path: &Path, message: String) -> Self {
+    pub(crate) fn new(path: &Path, message: String) -> Self {
         Self {
             path: path.display().to_string(),
             message: one_line(&message),
@@ -79,6 +79,8 @@ pub struct Recording {
 
 /// Called with the topic, log time and bytes of each message.
 type RawVisitor<'a> = &'a mut dyn FnMut(&str, u64, &[u8]);
+/// Called with each attachment and metadata record.
+type ExtraVisitor<'a> = &'a mut dyn FnMut(&Record<'_>);
 
 const MAGIC: &[u8] = b"\x89MCAP0\r\n";
 
@@ -221,6 +223,7 @@ impl Recording {
                 },
                 |damage| contents.damage = Some(damage),
                 None,
+                None,
             )
             .map_err(fail)?;
         // Reading stops where the file stops vouching for its messages.
@@ -247,7 +250,7 @@ impl Recording {
         &self,
         f: impl FnMut(u64, Message<'_>) -> Result<bool, E>,
     ) -> Result<(), E> {
-        self.visit(f, |_, _| {}, |_| {}, None)
+        self.visit(f, |_, _| {}, |_| {}, None, None)
     }
 
     /// Every lossless message, as its bytes, per topic in file order: what
@@ -271,8 +274,46 @@ impl Recording {
             |_, _| {},
             |_| {},
             Some(&mut f),
+            None,
         )
         .map_err(|message| ReadError::new(&self.path, message))
+    }
+
+    /// The attached files, `(name, contents)`, in file order (the rig, the
+    /// files it refers to, the plan, the run's config).
+    pub fn attachments(&self) -> Result<Vec<(String, Vec<u8>)>, ReadError> {
+        let mut out = Vec::new();
+        self.visit(
+            |_, _| Ok::<_, String>(true),
+            |_, _| {},
+            |_| {},
+            None,
+            Some(&mut |r: &Record<'_>| {
+                if let Record::Attachment { header, data, .. } = r {
+                    out.push((header.name.clone(), data.to_vec()));
+                }
+            }),
+        )
+        .map_err(|message| ReadError::new(&self.path, message))?;
+        Ok(out)
+    }
+
+    /// The metadata records by name (`run`, `rig`, `layouts`).
+    pub fn metadata(&self) -> Result<BTreeMap<String, BTreeMap<String, String>>, ReadError> {
+        let mut out = BTreeMap::new();
+        self.visit(
+            |_, _| Ok::<_, String>(true),
+            |_, _| {},
+            |_| {},
+            None,
+            Some(&mut |r: &Record<'_>| {
+                if let Record::Metadata(m) = r {
+                    out.insert(m.name.clone(), m.metadata.clone());
+                }
+            }),
+        )
+        .map_err(|message| ReadError::new(&self.path, message))?;
+        Ok(out)
     }
 
     fn visit<E: From<String>>(
@@ -281,6 +322,7 @@ impl Recording {
         others: impl FnOnce(u64, u64),
         on_damage: impl FnOnce(Damage),
         mut raw: Option<RawVisitor<'_>>,
+        mut extras: Option<ExtraVisitor<'_>>,
     ) -> Result<(), E> {
         let mut file = open_mcap(&self.path)?.take(self.trusted);
         let mut reader = LinearReader::new_with_options(
@@ -353,6 +395,11 @@ impl Recording {
                     read += 1;
                     if !f(header.log_time, decoded)? {
                         break;
+                    }
+                }
+                record @ (Record::Attachment { .. } | Record::Metadata(_)) => {
+                    if let Some(extras) = extras.as_mut() {
+                        extras(&record);
                     }
                 }
                 _ => {}

@@ -1,31 +1,69 @@
 //! `replay`: publishes a recording back onto the bus; see the crate docs.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Result, bail};
-use clap::Parser;
+use clap::{Parser, Subcommand};
 use recorder::channels::TopicId;
 use recorder::reader::Recording;
 use recorder::replay::{Pace, ReplayBus, ReplayOptions, replay};
 
-/// Publish a recording back onto a pipeline's topics.
+/// Publish a recording back onto a pipeline's topics, or compare two
+/// recordings (`replay diff A B`).
 ///
 /// Start replay first (it creates the services, lossless), then the stages
 /// to re-run on the same --prefix: `--kind frames` re-runs tracker_proc and
-/// mirror_proc, `--kind detections` re-runs mirror_proc only.
+/// mirror_proc, `--kind detections` re-runs mirror_proc only (`pipeline
+/// --replay FILE` does all of it).
 #[derive(Debug, Parser)]
-#[command(version, about, long_about = None)]
+#[command(
+    version,
+    about,
+    long_about = None,
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    replay: Args,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Compare two recordings channel by channel: counts, the first message
+    /// that differs and in which fields, and numeric deltas of the typed
+    /// messages. Exit 0 when the compared channels are identical, 1 when
+    /// they differ, 2 on error.
+    Diff {
+        /// The first recording.
+        a: PathBuf,
+        /// The second recording.
+        b: PathBuf,
+        /// Compare only these channels (comma separated), e.g. calibration,samples.
+        #[arg(long, value_delimiter = ',')]
+        channels: Option<Vec<String>>,
+        /// Print the comparison as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Replaying a recording.
+#[derive(Debug, clap::Args)]
 struct Args {
     /// The MCAP recording.
-    file: PathBuf,
+    #[arg(required = true)]
+    file: Option<PathBuf>,
     /// Service prefix to publish on (use a fresh one, not a live pipeline's).
-    #[arg(long)]
-    prefix: String,
+    #[arg(long, required = true)]
+    prefix: Option<String>,
     /// What to publish: `frames` (frames and joint states), `detections`
     /// (detections and joint states), or `all` (every recorded topic).
     #[arg(long, default_value = "frames")]
@@ -74,18 +112,22 @@ fn topics_of(args: &Args) -> Result<Vec<TopicId>> {
 
 fn run(args: Args) -> Result<()> {
     let topics = topics_of(&args)?;
-    Recording::probe(&args.file)?;
-    let recording = Recording::open(&args.file)?;
-    let bus = ReplayBus::create(&args.prefix, &recording, &topics)?;
+    // clap requires both unless a subcommand is given.
+    let (Some(file), Some(prefix)) = (&args.file, &args.prefix) else {
+        bail!("give the recording and --prefix");
+    };
+    Recording::probe(file)?;
+    let recording = Recording::open(file)?;
+    let bus = ReplayBus::create(prefix, &recording, &topics)?;
     tracing::info!(
-        prefix = args.prefix,
+        prefix = prefix.as_str(),
         "services created; start the stages to re-run"
     );
     let contents = recording.contents();
     if let Some(d) = &contents.damage {
         tracing::warn!(
             "{}: damaged after {} messages ({}); replaying the readable part",
-            args.file.display(),
+            file.display(),
             d.after_messages,
             d.error
         );
@@ -133,6 +175,43 @@ fn seconds(flag: &str, s: f64) -> Result<Duration> {
         .map_err(|_| anyhow::anyhow!("{flag}: `{s}` is not a number of seconds >= 0"))
 }
 
+/// `replay diff`: the report on stdout; exit 0 identical, 1 different, 2 error.
+fn diff(a: &Path, b: &Path, channels: Option<&[String]>, json: bool) -> ExitCode {
+    match recorder::diff::diff(a, b, channels) {
+        Ok(report) => {
+            if json {
+                match serde_json::to_string_pretty(&report) {
+                    Ok(text) => println!("{text}"),
+                    Err(e) => {
+                        eprintln!("replay: error: {e}");
+                        return ExitCode::from(2);
+                    }
+                }
+            } else {
+                print!("{}", recorder::diff::table(&report));
+            }
+            if report.identical {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(1)
+            }
+        }
+        Err(e) => {
+            eprintln!("replay: error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
 fn main() -> ExitCode {
-    messages::stage_main("replay", || run(Args::parse()))
+    let cli = Cli::parse();
+    match cli.command {
+        Some(Command::Diff {
+            a,
+            b,
+            channels,
+            json,
+        }) => diff(&a, &b, channels.as_deref(), json),
+        None => messages::stage_main("replay", || run(cli.replay)),
+    }
 }

@@ -606,3 +606,133 @@ fn a_full_disk_stops_the_recorder_with_one_line_and_a_readable_file_while_stages
         a[&TopicId::Frames].len()
     );
 }
+
+/// `replay diff A B` with its exit code and output.
+fn diff(a: &Path, b: &Path, extra: &[&str]) -> (Option<i32>, String, String) {
+    let output = Command::new(stage_binaries().join("replay"))
+        .arg("diff")
+        .args([a, b])
+        .args(extra)
+        .output()
+        .unwrap();
+    (
+        output.status.code(),
+        String::from_utf8_lossy(&output.stdout).to_string(),
+        String::from_utf8_lossy(&output.stderr).to_string(),
+    )
+}
+
+/// The channels downstream of the detections.
+const DOWNSTREAM: &str = "samples,calibration,predictions,located";
+
+/// `pipeline --replay` re-runs the mirror stage on the recorded detections
+/// with the rig, plan and config the recording holds: the downstream
+/// channels come out identical (`replay diff` exits 0). With another
+/// method the calibration differs, and `diff` exits 1 naming the plane.
+#[test]
+fn a_recorded_run_re_run_by_the_launcher_diffs_identical_and_another_method_does_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let rerun = |method: Option<&str>, out: &Path| {
+        let mut command = Command::new(stage_binaries().join("pipeline"));
+        command
+            .args([
+                "--replay",
+                recording_a().to_str().unwrap(),
+                "--kind",
+                "detections",
+            ])
+            .args([
+                "--out",
+                out.to_str().unwrap(),
+                "--prefix",
+                &unique_prefix("rerun"),
+            ])
+            .args(["--report", "json"]);
+        if let Some(m) = method {
+            command.args(["--method", m]);
+        }
+        let output = command.output().unwrap();
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+        assert!(out.join("recording.mcap").exists() && out.join("report.json").exists());
+        report
+    };
+    let same = dir.path().join("same");
+    let report = rerun(None, &same);
+    let live: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(live_run().out.join("mirror0/report.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        report["placements"][0]["report"]["calibration"], live["calibration"],
+        "the re-run's calibration is the live one"
+    );
+    let b = same.join("recording.mcap");
+    let (code, out, err) = diff(&recording_a(), &b, &["--channels", DOWNSTREAM]);
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(out.contains("identical: 4 channels"), "{out}");
+    let (code, json, _) = diff(&recording_a(), &b, &["--channels", DOWNSTREAM, "--json"]);
+    assert_eq!(code, Some(0));
+    let json: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(json["identical"], true);
+    assert!(
+        json["channels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|c| c["count_a"] == c["count_b"])
+    );
+
+    let other = dir.path().join("joint");
+    rerun(Some("joint"), &other);
+    let (code, out, err) = diff(
+        &recording_a(),
+        &other.join("recording.mcap"),
+        &["--channels", DOWNSTREAM],
+    );
+    assert_eq!(code, Some(1), "{out}{err}");
+    let calibration = out.lines().find(|l| l.starts_with("calibration")).unwrap();
+    assert!(calibration.contains("differs in: method, plane"), "{out}");
+    assert!(out.contains("plane_angle_deg: max "), "{out}");
+    assert!(
+        out.lines()
+            .any(|l| l.starts_with("samples") && l.ends_with("identical")),
+        "{out}"
+    );
+    eprintln!("{out}");
+}
+
+/// `replay diff` on a damaged file, a foreign file or an unknown channel:
+/// one line on stderr, exit 2.
+#[test]
+fn diff_of_damaged_or_foreign_files_is_a_one_line_error_and_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = std::fs::read(recording_a()).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &whole[..whole.len() / 2]).unwrap();
+    let foreign = live_run().out.join("mirror0/rig.toml");
+    let missing = dir.path().join("missing.mcap");
+    for (b, extra, expect) in [
+        (&cut, &[][..], "damaged after"),
+        (&foreign, &[][..], "not an MCAP file"),
+        (&missing, &[][..], "cannot read"),
+        (
+            &recording_a(),
+            &["--channels", "nope"][..],
+            "--channels: no channel `nope`",
+        ),
+    ] {
+        let (code, out, err) = diff(&recording_a(), b, extra);
+        assert_eq!(code, Some(2), "{out}{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(
+            err.starts_with("replay: error: ") && err.contains(expect),
+            "{err}"
+        );
+        assert!(out.is_empty(), "{out}");
+    }
+}
