@@ -495,3 +495,50 @@ pub fn table(report: &DiffReport) -> String {
     };
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use messages::{CalibrationMsg, CameraMarkers, Marker, StereoDetections};
+
+    fn detections(x: f64) -> StereoDetections {
+        let mut c = CameraMarkers::default();
+        c.push(Marker {
+            id: 3,
+            mirrored: 1,
+            corners: [0.0; 8],
+            center: [x, 20.0],
+        });
+        StereoDetections {
+            seq: 1,
+            stamp_ns: 5,
+            frame_published_ns: 6,
+            cameras: [c, CameraMarkers::default()],
+        }
+    }
+
+    #[test]
+    fn fields_and_deltas_name_what_moved_and_by_how_much() {
+        let (a, b) = (detections(10.0), detections(10.5));
+        let (ma, mb) = (Message::Detections(a), Message::Detections(b));
+        assert_eq!(differing_fields(&ma, &mb), ["left.centres"]);
+        let mut d = Deltas::default();
+        d.add(&ma, &mb);
+        assert_eq!(d.summaries()["centre_px"].max, 0.5);
+
+        let plane = |nz: f64, dist: f64| CalibrationMsg {
+            has_plane: 1,
+            plane: [0.0, (1.0 - nz * nz).sqrt(), nz, dist],
+            ..Default::default()
+        };
+        let (ca, cb) = (plane(1.0, 500.0), plane(0.5f64.to_radians().cos(), 502.0));
+        let (ma, mb) = (Message::Calibration(ca), Message::Calibration(cb));
+        assert_eq!(differing_fields(&ma, &mb), ["plane"]);
+        let mut d = Deltas::default();
+        d.add(&ma, &mb);
+        let s = d.summaries();
+        assert!((s["plane_angle_deg"].max - 0.5).abs() < 1e-9, "{s:?}");
+        assert_eq!(s["plane_distance_mm"].max, 2.0);
+        assert_eq!(s["mirror_camera_centre_mm"].max, 0.0);
+    }
+}
