@@ -114,22 +114,15 @@ impl Run {
         // within this run resumes from them; a new run starts new ones.
         let journal = dir.join("journal.mcap");
         let arm_journal = dir.join("arm_journal.mcap");
-        let launch = Launch {
-            bin_dir: self.bin_dir.clone(),
-            prefix: format!("{}_m{mirror}", self.prefix),
-            log: dir.join("stages.log"),
-            trace_dir: self.trace.then(|| dir.join("trace")),
-            stats_dir: dir.join("stats"),
-        };
-        for stale in [
-            &report_path,
-            &journal,
-            &arm_journal,
-            &launch.log,
-            &launch.stats_dir,
-        ]
-        .into_iter()
-        .chain(&launch.trace_dir)
+        let launch = Launch::in_dir(
+            &self.bin_dir,
+            format!("{}_m{mirror}", self.prefix),
+            &dir,
+            self.trace,
+        );
+        for stale in [&report_path, &journal, &arm_journal]
+            .into_iter()
+            .chain(launch.outputs())
         {
             clear(stale);
         }
@@ -237,22 +230,10 @@ impl Run {
         let report_path = dir.join("mirror_report.json");
         let recording = dir.join("recording.mcap");
         let journal = dir.join("journal.mcap");
-        let launch = Launch {
-            bin_dir: self.bin_dir.clone(),
-            prefix: self.prefix.clone(),
-            log: dir.join("stages.log"),
-            trace_dir: self.trace.then(|| dir.join("trace")),
-            stats_dir: dir.join("stats"),
-        };
-        for stale in [
-            &report_path,
-            &journal,
-            &launch.log,
-            &launch.stats_dir,
-            &recording,
-        ]
-        .into_iter()
-        .chain(&launch.trace_dir)
+        let launch = Launch::in_dir(&self.bin_dir, self.prefix.clone(), &dir, self.trace);
+        for stale in [&report_path, &journal, &recording]
+            .into_iter()
+            .chain(launch.outputs())
         {
             clear(stale);
         }

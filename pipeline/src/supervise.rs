@@ -27,6 +27,25 @@ pub struct Launch {
 }
 
 impl Launch {
+    /// Stages of `bin_dir` on `prefix`, with their log, stats and (when
+    /// `trace`) traces in `dir`.
+    pub fn in_dir(bin_dir: &Path, prefix: String, dir: &Path, trace: bool) -> Self {
+        Self {
+            bin_dir: bin_dir.to_path_buf(),
+            prefix,
+            log: dir.join("stages.log"),
+            trace_dir: trace.then(|| dir.join("trace")),
+            stats_dir: dir.join("stats"),
+        }
+    }
+
+    /// What an earlier run left in its log, stats and trace paths.
+    pub fn outputs(&self) -> impl Iterator<Item = &PathBuf> {
+        [&self.log, &self.stats_dir]
+            .into_iter()
+            .chain(&self.trace_dir)
+    }
+
     fn spawn(&self, stage: &StageArgs) -> Result<Child> {
         let log = std::fs::OpenOptions::new()
             .create(true)

@@ -283,37 +283,35 @@ impl Recording {
     /// files it refers to, the plan, the run's config).
     pub fn attachments(&self) -> Result<Vec<(String, Vec<u8>)>, ReadError> {
         let mut out = Vec::new();
-        self.visit(
-            |_, _| Ok::<_, String>(true),
-            |_, _| {},
-            |_| {},
-            None,
-            Some(&mut |r: &Record<'_>| {
-                if let Record::Attachment { header, data, .. } = r {
-                    out.push((header.name.clone(), data.to_vec()));
-                }
-            }),
-        )
-        .map_err(|message| ReadError::new(&self.path, message))?;
+        self.for_each_extra(|r| {
+            if let Record::Attachment { header, data, .. } = r {
+                out.push((header.name.clone(), data.to_vec()));
+            }
+        })?;
         Ok(out)
     }
 
     /// The metadata records by name (`run`, `rig`, `layouts`).
     pub fn metadata(&self) -> Result<BTreeMap<String, BTreeMap<String, String>>, ReadError> {
         let mut out = BTreeMap::new();
+        self.for_each_extra(|r| {
+            if let Record::Metadata(m) = r {
+                out.insert(m.name.clone(), m.metadata.clone());
+            }
+        })?;
+        Ok(out)
+    }
+
+    /// Calls `f` with each attachment and metadata record of the readable part.
+    fn for_each_extra(&self, mut f: impl FnMut(&Record<'_>)) -> Result<(), ReadError> {
         self.visit(
             |_, _| Ok::<_, String>(true),
             |_, _| {},
             |_| {},
             None,
-            Some(&mut |r: &Record<'_>| {
-                if let Record::Metadata(m) = r {
-                    out.insert(m.name.clone(), m.metadata.clone());
-                }
-            }),
+            Some(&mut f),
         )
-        .map_err(|message| ReadError::new(&self.path, message))?;
-        Ok(out)
+        .map_err(|message| ReadError::new(&self.path, message))
     }
 
     fn visit<E: From<String>>(
