@@ -3,6 +3,12 @@
 //! dictionary, on the same rendered frames in the same run; and the
 //! tracker stage's whole step (header checks, stamp order, `Mat` views over
 //! the frame as laid out in shared memory, both images).
+//!
+//! The ratios print first: both passes timed frame by frame, interleaved
+//! (the order alternating each frame) in rounds over the same frames, so
+//! that the machine's load changes both alike; each round gives a ratio and
+//! the spread over rounds says how far to trust it. The renderer is timed
+//! against the tracker the same way.
 //! Run: `cargo bench -p tracker_proc --bench detect`.
 
 use camera_proc::render::Renderer;
@@ -13,9 +19,11 @@ use messages::{Encoding, FrameHeader};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use std::hint::black_box;
+use std::time::{Duration, Instant};
 use tracker_proc::{Detector, Tracked, Tracker};
 
-fn frames() -> Vec<[Mat; 2]> {
+/// The training poses the frames are rendered at.
+fn poses() -> Vec<Vec<f64>> {
     let data = generate(
         &nico_scene(),
         0,
@@ -28,14 +36,19 @@ fn frames() -> Vec<[Mat; 2]> {
         4,
     )
     .unwrap();
-    let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
     data.train
         .iter()
+        .map(|s| s.joints.clone().unwrap())
+        .collect()
+}
+
+fn frames() -> Vec<[Mat; 2]> {
+    let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
+    poses()
+        .iter()
         .enumerate()
-        .map(|(i, s)| {
-            let ([l, r], _) = renderer
-                .render_pair(s.joints.as_ref().unwrap(), Facing::Mirror, i as u64)
-                .unwrap();
+        .map(|(i, q)| {
+            let ([l, r], _) = renderer.render_pair(q, Facing::Mirror, i as u64).unwrap();
             let mat = |v: Vec<u8>| {
                 Mat::from_slice(&v)
                     .unwrap()
@@ -47,6 +60,121 @@ fn frames() -> Vec<[Mat; 2]> {
             [mat(l), mat(r)]
         })
         .collect()
+}
+
+/// Median and range of per-round ratios `a / b`.
+fn spread(mut ratios: Vec<f64>) -> (f64, f64, f64) {
+    ratios.sort_by(f64::total_cmp);
+    (
+        ratios[ratios.len() / 2],
+        ratios[0],
+        ratios[ratios.len() - 1],
+    )
+}
+
+/// Times `a` and `b` on each of `n` items in turn, alternating which goes
+/// first, for `rounds` rounds; returns per-round total times (a, b).
+fn interleaved(
+    rounds: usize,
+    n: usize,
+    mut a: impl FnMut(usize),
+    mut b: impl FnMut(usize),
+) -> Vec<(Duration, Duration)> {
+    (0..rounds)
+        .map(|round| {
+            let (mut ta, mut tb) = (Duration::ZERO, Duration::ZERO);
+            for i in 0..n {
+                let time = |f: &mut dyn FnMut(usize), total: &mut Duration| {
+                    let t = Instant::now();
+                    f(i);
+                    *total += t.elapsed();
+                };
+                if (i + round) % 2 == 0 {
+                    time(&mut a, &mut ta);
+                    time(&mut b, &mut tb);
+                } else {
+                    time(&mut b, &mut tb);
+                    time(&mut a, &mut ta);
+                }
+            }
+            (ta, tb)
+        })
+        .collect()
+}
+
+/// Ratios measured in this run, interleaved, with their spread over rounds.
+fn ratios(_: &mut Criterion) {
+    // `cargo bench` passes --bench; under `cargo test` one short round shows it runs.
+    let rounds = if std::env::args().any(|a| a == "--bench") {
+        15
+    } else {
+        1
+    };
+    let frames = frames();
+    let n = frames.len();
+    let mut stock = Detector::new(false).unwrap();
+    let mut ours = Detector::new(true).unwrap();
+    let times = interleaved(
+        rounds,
+        n,
+        |i| {
+            black_box((
+                ours.detect(&frames[i][0]).unwrap(),
+                ours.detect(&frames[i][1]).unwrap(),
+            ));
+        },
+        |i| {
+            black_box((
+                stock.detect(&frames[i][0]).unwrap(),
+                stock.detect(&frames[i][1]).unwrap(),
+            ));
+        },
+    );
+    let per_frame = |d: Duration| d.as_secs_f64() * 1e3 / n as f64;
+    let (median, lo, hi) = spread(
+        times
+            .iter()
+            .map(|(a, b)| a.as_secs_f64() / b.as_secs_f64())
+            .collect(),
+    );
+    let (a, b) = times[times.len() / 2];
+    println!(
+        "ratio ours / stock detectMarkers per stereo frame: {median:.3} (range {lo:.3} to {hi:.3} over {rounds} rounds of {n} frames; ours {:.2} ms, stock {:.2} ms)",
+        per_frame(a),
+        per_frame(b)
+    );
+    let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
+    let poses = poses();
+    let mut tracker = Detector::new(true).unwrap();
+    let times = interleaved(
+        rounds,
+        n,
+        |i| {
+            black_box(
+                renderer
+                    .render_pair(&poses[i], Facing::Mirror, i as u64)
+                    .unwrap(),
+            );
+        },
+        |i| {
+            black_box((
+                tracker.detect(&frames[i][0]).unwrap(),
+                tracker.detect(&frames[i][1]).unwrap(),
+            ));
+        },
+    );
+    let (median, lo, hi) = spread(
+        times
+            .iter()
+            .map(|(a, b)| a.as_secs_f64() / b.as_secs_f64())
+            .collect(),
+    );
+    let (a, b) = times[times.len() / 2];
+    println!(
+        "ratio render / track per stereo frame: {median:.3} (range {lo:.3} to {hi:.3} over {rounds} rounds; render {:.2} ms, track {:.2} ms)",
+        per_frame(a),
+        per_frame(b)
+    );
 }
 
 fn bench(c: &mut Criterion) {
@@ -97,5 +225,5 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench);
+criterion_group!(benches, ratios, bench);
 criterion_main!(benches);
