@@ -55,6 +55,10 @@ enum Source {
         /// Right camera device, when the cameras are separate.
         #[arg(long)]
         right: Option<String>,
+        /// Play a video file at this rate, Hz (default: the file's own rate;
+        /// a live device always delivers at its own).
+        #[arg(long)]
+        fps: Option<f64>,
     },
     /// Render one stereo pair of the simulated scene to PNG files (debugging).
     Snapshot {
@@ -88,14 +92,24 @@ fn main() -> ExitCode {
             prefix,
             source,
             right,
-        } => match right {
-            Some(r) => {
-                Captures::pair(&source, &r).and_then(|s| stage::run_source(&prefix, s, None))
-            }
-            None => {
-                Captures::side_by_side(&source).and_then(|s| stage::run_source(&prefix, s, None))
-            }
-        },
+            fps,
+        } => {
+            let captures = match right {
+                Some(r) => Captures::pair(&source, &r),
+                None => Captures::side_by_side(&source),
+            };
+            captures.and_then(|c| {
+                if let Some(f) = fps
+                    && !(f > 0.0 && f <= 1000.0)
+                {
+                    anyhow::bail!("--fps must be in (0, 1000]");
+                }
+                // A file plays at --fps or its own rate; a device at its own.
+                let rate = c.file_rate().map(|own| fps.unwrap_or(own));
+                tracing::info!(rate_hz = rate, "playing");
+                stage::run_source(&prefix, c, rate)
+            })
+        }
         Source::Snapshot {
             mirror,
             q,

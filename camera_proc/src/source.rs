@@ -114,51 +114,112 @@ impl StereoSource for ImagePairs {
     }
 }
 
+/// What a capture says about itself when opened.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureInfo {
+    /// Frame size as delivered (both halves for side by side), px.
+    pub width: u32,
+    /// Frame height, px.
+    pub height: u32,
+    /// The frame rate it declares, Hz (0 when it declares none).
+    pub fps: f64,
+    /// Its codec's FourCC, e.g. `MJPG` (empty when none is declared).
+    pub codec: String,
+    /// Frames in a file; `None` for a live device.
+    pub frames: Option<u64>,
+}
+
+fn open_capture(source: &str) -> Result<(videoio::VideoCapture, CaptureInfo)> {
+    let cap = videoio::VideoCapture::from_file(source, videoio::CAP_ANY)?;
+    if !cap.is_opened()? {
+        bail!("{source}: cannot open");
+    }
+    let fourcc = cap.get(videoio::CAP_PROP_FOURCC)? as u32;
+    let codec: String = fourcc
+        .to_le_bytes()
+        .iter()
+        .filter(|b| b.is_ascii_graphic())
+        .map(|&b| b as char)
+        .collect();
+    let count = cap.get(videoio::CAP_PROP_FRAME_COUNT)?;
+    let info = CaptureInfo {
+        width: cap.get(videoio::CAP_PROP_FRAME_WIDTH)? as u32,
+        height: cap.get(videoio::CAP_PROP_FRAME_HEIGHT)? as u32,
+        fps: cap.get(videoio::CAP_PROP_FPS)?.max(0.0),
+        codec,
+        frames: (count > 0.0).then_some(count as u64),
+    };
+    tracing::info!(
+        source,
+        width = info.width,
+        height = info.height,
+        fps = info.fps,
+        codec = info.codec.as_str(),
+        frames = info.frames,
+        "opened"
+    );
+    Ok((cap, info))
+}
+
 /// One side-by-side capture (a video file or a device) split into left and right halves,
 /// or two captures (two devices).
 pub struct Captures {
     captures: Vec<videoio::VideoCapture>,
     size: (u32, u32),
     name: String,
+    info: CaptureInfo,
 }
 
 impl Captures {
     /// Opens a video file or device path (`/dev/video0`) holding side-by-side stereo.
     pub fn side_by_side(source: &str) -> Result<Self> {
-        let cap = videoio::VideoCapture::from_file(source, videoio::CAP_ANY)?;
-        if !cap.is_opened()? {
-            bail!("{source}: cannot open");
+        let (cap, info) = open_capture(source)?;
+        if info.width < 2 || info.width % 2 != 0 {
+            bail!(
+                "{source}: {} px wide, not two side-by-side images",
+                info.width
+            );
         }
-        let (w, h) = (
-            cap.get(videoio::CAP_PROP_FRAME_WIDTH)? as u32,
-            cap.get(videoio::CAP_PROP_FRAME_HEIGHT)? as u32,
-        );
         Ok(Self {
             captures: vec![cap],
-            size: (w / 2, h),
+            size: (info.width / 2, info.height),
             name: source.into(),
+            info,
         })
     }
 
     /// Opens two devices or files, left then right.
     pub fn pair(left: &str, right: &str) -> Result<Self> {
-        let mut captures = Vec::new();
-        for s in [left, right] {
-            let cap = videoio::VideoCapture::from_file(s, videoio::CAP_ANY)?;
-            if !cap.is_opened()? {
-                bail!("{s}: cannot open");
-            }
-            captures.push(cap);
+        let (l, info) = open_capture(left)?;
+        let (r, right_info) = open_capture(right)?;
+        if (right_info.width, right_info.height) != (info.width, info.height) {
+            bail!(
+                "{right}: {}x{} px, the left camera {left} gives {}x{}",
+                right_info.width,
+                right_info.height,
+                info.width,
+                info.height
+            );
         }
-        let (w, h) = (
-            captures[0].get(videoio::CAP_PROP_FRAME_WIDTH)? as u32,
-            captures[0].get(videoio::CAP_PROP_FRAME_HEIGHT)? as u32,
-        );
         Ok(Self {
-            captures,
-            size: (w, h),
+            captures: vec![l, r],
+            size: (info.width, info.height),
             name: format!("{left} + {right}"),
+            info,
         })
+    }
+
+    /// What the (left) capture declared when opened.
+    pub fn info(&self) -> &CaptureInfo {
+        &self.info
+    }
+
+    /// The rate to play at: a file's own frame rate; `None` for a live
+    /// device, which delivers at its own pace.
+    pub fn file_rate(&self) -> Option<f64> {
+        self.info
+            .frames
+            .and_then(|_| (self.info.fps > 0.0).then_some(self.info.fps))
     }
 }
 

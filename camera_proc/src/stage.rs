@@ -134,8 +134,8 @@ pub fn run_source(prefix: &str, mut source: impl StereoSource, fps: Option<f64>)
             source.next_into(left, right)
         })??;
         stats.cpu_step(cpu);
-        seq += 1;
         Ok(if more {
+            seq += 1;
             ControlFlow::Continue(())
         } else {
             ControlFlow::Break(())

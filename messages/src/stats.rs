@@ -173,6 +173,14 @@ impl StageStats {
                 "cpu"
             );
         }
+        if !summary.counters.is_empty() {
+            let counters: Vec<String> = summary
+                .counters
+                .iter()
+                .map(|(k, v)| format!("{k}={v}"))
+                .collect();
+            tracing::info!(stage = self.stage, "counters {}", counters.join(" "));
+        }
         for (name, l) in &summary.latencies {
             tracing::info!(
                 stage = self.stage,
