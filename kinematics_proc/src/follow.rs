@@ -143,32 +143,33 @@ impl Follower {
                     .zip(q)
                     .all(|(g, v)| (g - v).abs() <= self.rule.tolerance);
                 let (pose, role) = (target.pose, target.role as u32);
-                match self.phase {
+                let published = match self.phase {
                     Phase::Moving if near && self.still(p.stamp_ns, q) => {
                         self.phase = Phase::Settled;
                         self.settled_at = p.stamp_ns;
                         settled_after_ns = Some(p.stamp_ns - self.goal_sent_ns);
+                        Phase::Settled
                     }
-                    Phase::Settled if !near => self.phase = Phase::Moving,
+                    Phase::Settled if !near => {
+                        self.phase = Phase::Moving;
+                        Phase::Moving
+                    }
                     Phase::Settled if p.stamp_ns - self.settled_at >= self.rule.dwell_ns => {
-                        // This reading still shows the held pose; the next goal goes out.
+                        // This reading still shows the held pose (or the end
+                        // of the plan); the next goal goes out.
                         self.index += 1;
                         self.phase = Phase::Moving;
                         goal = Some(self.goal(p.stamp_ns));
                         self.sent(p.stamp_ns);
-                        let mut state = self.state(p, arm, pose, role, Phase::Settled)?;
                         if self.done() {
-                            state.phase = Phase::Done as u32;
+                            Phase::Done
+                        } else {
+                            Phase::Settled
                         }
-                        return Ok(Step {
-                            state,
-                            settled_after_ns,
-                            goal,
-                        });
                     }
-                    _ => {}
-                }
-                (pose, role, self.phase)
+                    current => current,
+                };
+                (pose, role, published)
             }
         };
         Ok(Step {
