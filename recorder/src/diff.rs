@@ -9,7 +9,6 @@ use std::collections::BTreeMap;
 use std::hash::{DefaultHasher, Hash, Hasher};
 use std::path::Path;
 
-use messages::{JointPositions, JointState, PoseGoal};
 use nalgebra::Vector3;
 use serde::Serialize;
 
@@ -206,11 +205,12 @@ fn compare(name: &str, a: &[Kept], b: &[Kept]) -> ChannelDiff {
 fn fields(m: &Message<'_>) -> Vec<(&'static str, Vec<f64>)> {
     let f = |v: &[f64]| v.to_vec();
     let u = |v: u64| vec![v as f64];
+    let i = |v: i64| vec![v as f64];
     match m {
         Message::Frames(h, pixels) => vec![
             ("seq", u(h.seq)),
-            ("stamp_ns", u(h.stamp_ns as u64)),
-            ("published_ns", u(h.published_ns as u64)),
+            ("stamp_ns", i(h.stamp_ns)),
+            ("published_ns", i(h.published_ns)),
             (
                 "size",
                 vec![f64::from(h.width), f64::from(h.height), f64::from(h.stride)],
@@ -221,29 +221,40 @@ fn fields(m: &Message<'_>) -> Vec<(&'static str, Vec<f64>)> {
         Message::Detections(d) => {
             let mut out = vec![
                 ("seq", u(d.seq)),
-                ("stamp_ns", u(d.stamp_ns as u64)),
-                ("frame_published_ns", u(d.frame_published_ns as u64)),
+                ("stamp_ns", i(d.stamp_ns)),
+                ("frame_published_ns", i(d.frame_published_ns)),
             ];
-            for (k, side) in ["left", "right"].into_iter().enumerate() {
-                let c = &d.cameras[k];
+            const SIDES: [[&str; 3]; 2] = [
+                ["left.markers", "left.centres", "left.corners"],
+                ["right.markers", "right.centres", "right.corners"],
+            ];
+            for (c, [markers, centres_name, corners_name]) in d.cameras.iter().zip(SIDES) {
                 let ids: Vec<f64> = c
                     .iter()
                     .flat_map(|m| [f64::from(m.id), f64::from(m.mirrored)])
                     .collect();
                 let centres: Vec<f64> = c.iter().flat_map(|m| m.center).collect();
                 let corners: Vec<f64> = c.iter().flat_map(|m| m.corners).collect();
-                let (i, ce, co) = match side {
-                    "left" => ("left.markers", "left.centres", "left.corners"),
-                    _ => ("right.markers", "right.centres", "right.corners"),
-                };
-                out.extend([(i, ids), (ce, centres), (co, corners)]);
+                out.extend([
+                    (markers, ids),
+                    (centres_name, centres),
+                    (corners_name, corners),
+                ]);
             }
             out
         }
-        Message::JointState(j) => joint_state_fields(j),
+        Message::JointState(j) => vec![
+            ("seq", u(j.seq)),
+            ("stamp_ns", i(j.stamp_ns)),
+            ("pose", u(j.pose)),
+            ("phase", u(u64::from(j.phase))),
+            ("role", u(u64::from(j.role))),
+            ("q", f(j.joints())),
+            ("model_point", f(&j.model_point)),
+        ],
         Message::Samples(s) => vec![
             ("pose", u(s.pose)),
-            ("stamp_ns", u(s.stamp_ns as u64)),
+            ("stamp_ns", i(s.stamp_ns)),
             ("role", u(u64::from(s.role))),
             ("q", f(&s.q[..(s.dof as usize).min(s.q.len())])),
             ("model_point", f(&s.model_point)),
@@ -251,7 +262,7 @@ fn fields(m: &Message<'_>) -> Vec<(&'static str, Vec<f64>)> {
             ("triangulated", f(&s.triangulated)),
         ],
         Message::Calibration(c) => vec![
-            ("stamp_ns", u(c.stamp_ns as u64)),
+            ("stamp_ns", i(c.stamp_ns)),
             ("revision", u(c.revision)),
             ("method", u(u64::from(c.method))),
             ("samples", u(u64::from(c.samples))),
@@ -278,7 +289,7 @@ fn fields(m: &Message<'_>) -> Vec<(&'static str, Vec<f64>)> {
         ],
         Message::Predictions(p) => vec![
             ("pose", u(p.pose)),
-            ("stamp_ns", u(p.stamp_ns as u64)),
+            ("stamp_ns", i(p.stamp_ns)),
             ("revision", u(p.revision)),
             ("model_point", f(&p.model_point)),
             ("reconstructed", f(&p.reconstructed)),
@@ -290,45 +301,25 @@ fn fields(m: &Message<'_>) -> Vec<(&'static str, Vec<f64>)> {
             ("error_px", vec![p.error_px]),
         ],
         Message::Located(l) => vec![
-            ("stamp_ns", u(l.stamp_ns as u64)),
+            ("stamp_ns", i(l.stamp_ns)),
             ("revision", u(l.revision)),
             ("id", u(u64::from(l.id))),
             ("position", f(&l.position)),
         ],
-        Message::JointPositions(p) => joint_positions_fields(p),
-        Message::PoseGoal(g) => goal_fields(g),
+        Message::JointPositions(p) => vec![
+            ("seq", u(p.seq)),
+            ("stamp_ns", i(p.stamp_ns)),
+            ("q", f(p.joints())),
+        ],
+        Message::PoseGoal(g) => vec![
+            ("seq", u(g.seq)),
+            ("stamp_ns", i(g.stamp_ns)),
+            ("pose", u(g.pose)),
+            ("role", u(u64::from(g.role))),
+            ("flags", u(u64::from(g.flags))),
+            ("q", f(g.joints())),
+        ],
     }
-}
-
-fn joint_state_fields(j: &JointState) -> Vec<(&'static str, Vec<f64>)> {
-    vec![
-        ("seq", vec![j.seq as f64]),
-        ("stamp_ns", vec![j.stamp_ns as f64]),
-        ("pose", vec![j.pose as f64]),
-        ("phase", vec![f64::from(j.phase)]),
-        ("role", vec![f64::from(j.role)]),
-        ("q", j.joints().to_vec()),
-        ("model_point", j.model_point.to_vec()),
-    ]
-}
-
-fn joint_positions_fields(p: &JointPositions) -> Vec<(&'static str, Vec<f64>)> {
-    vec![
-        ("seq", vec![p.seq as f64]),
-        ("stamp_ns", vec![p.stamp_ns as f64]),
-        ("q", p.joints().to_vec()),
-    ]
-}
-
-fn goal_fields(g: &PoseGoal) -> Vec<(&'static str, Vec<f64>)> {
-    vec![
-        ("seq", vec![g.seq as f64]),
-        ("stamp_ns", vec![g.stamp_ns as f64]),
-        ("pose", vec![g.pose as f64]),
-        ("role", vec![f64::from(g.role)]),
-        ("flags", vec![f64::from(g.flags)]),
-        ("q", g.joints().to_vec()),
-    ]
 }
 
 fn differing_fields(a: &Message<'_>, b: &Message<'_>) -> Vec<String> {
