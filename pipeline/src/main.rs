@@ -98,10 +98,10 @@ enum ReplayKind {
 }
 
 impl ReplayKind {
-    fn name(self) -> &'static str {
+    fn kind(self) -> recorder::replay::Kind {
         match self {
-            ReplayKind::Frames => "frames",
-            ReplayKind::Detections => "detections",
+            ReplayKind::Frames => recorder::replay::Kind::Frames,
+            ReplayKind::Detections => recorder::replay::Kind::Detections,
         }
     }
 }
@@ -170,7 +170,7 @@ fn run(args: Args) -> Result<()> {
         stop,
     };
     let results = match &replay {
-        Some((file, unpacked)) => vec![run.replay(file, args.kind.name(), unpacked.mirror)?],
+        Some((file, unpacked)) => vec![run.replay(file, args.kind.kind(), unpacked.mirror)?],
         None => run
             .config
             .mirrors

@@ -220,7 +220,7 @@ impl Run {
     pub fn replay(
         &self,
         file: &Path,
-        kind: &'static str,
+        kind: recorder::replay::Kind,
         mirror: usize,
     ) -> Result<PlacementResult> {
         let config = &self.config;
@@ -240,10 +240,7 @@ impl Run {
         let started = Instant::now();
         let bus = Bus::new(&launch.prefix, "pipeline")?;
         let mut supervisor = Supervisor::new(&launch);
-        let replayed = match kind {
-            "frames" => [TopicId::Frames, TopicId::JointState],
-            _ => [TopicId::Detections, TopicId::JointState],
-        };
+        let replayed = kind.topics();
         supervisor.start(StageArgs::Replay {
             file: file.to_path_buf(),
             kind,
@@ -275,7 +272,7 @@ impl Run {
                     ("method".into(), config.method.to_string()),
                     ("fps".into(), config.fps.to_string()),
                     ("replay_of".into(), file.display().to_string()),
-                    ("replay_kind".into(), kind.into()),
+                    ("replay_kind".into(), kind.name().into()),
                 ],
                 live_view: self.live_view,
             });
@@ -287,7 +284,7 @@ impl Run {
             report: report_path.clone(),
             journal,
         });
-        if kind == "frames" {
+        if kind == recorder::replay::Kind::Frames {
             stages.push(StageArgs::Tracker);
         }
         for stage in stages {

@@ -70,8 +70,8 @@ pub enum StageArgs {
     Replay {
         /// The recording.
         file: PathBuf,
-        /// `frames` or `detections`.
-        kind: &'static str,
+        /// What it publishes.
+        kind: recorder::replay::Kind,
         /// Subscribers each replayed topic waits for.
         wait_subscribers: usize,
     },
@@ -198,7 +198,7 @@ impl StageArgs {
                 wait_subscribers,
                 ..
             } => {
-                flag("kind", kind.to_string());
+                flag("kind", kind.name().into());
                 flag("pace", "lockstep".into());
                 flag("wait-subscribers", wait_subscribers.to_string());
             }

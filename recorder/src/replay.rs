@@ -15,6 +15,37 @@ use messages::{Bus, BusError, FramePublisher, Publisher};
 use crate::channels::Message;
 use crate::reader::Recording;
 
+/// What a replay publishes, named for the stages it lets re-run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Kind {
+    /// Frames and joint states: the tracker and the mirror stage re-run.
+    Frames,
+    /// Detections and joint states: the mirror stage re-runs.
+    Detections,
+    /// Every recorded topic.
+    All,
+}
+
+impl Kind {
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Frames => "frames",
+            Kind::Detections => "detections",
+            Kind::All => "all",
+        }
+    }
+
+    /// The topics it publishes.
+    pub fn topics(self) -> Vec<TopicId> {
+        match self {
+            Kind::Frames => vec![TopicId::Frames, TopicId::JointState],
+            Kind::Detections => vec![TopicId::Detections, TopicId::JointState],
+            Kind::All => TopicId::ALL.to_vec(),
+        }
+    }
+}
+
 /// How fast to replay.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Pace {

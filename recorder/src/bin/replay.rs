@@ -11,7 +11,7 @@ use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
 use recorder::channels::TopicId;
 use recorder::reader::Recording;
-use recorder::replay::{Pace, ReplayBus, ReplayOptions, replay};
+use recorder::replay::{Kind, Pace, ReplayBus, ReplayOptions, replay};
 
 /// Publish a recording back onto a pipeline's topics, or compare two
 /// recordings (`replay diff A B`).
@@ -66,8 +66,8 @@ struct Args {
     prefix: Option<String>,
     /// What to publish: `frames` (frames and joint states), `detections`
     /// (detections and joint states), or `all` (every recorded topic).
-    #[arg(long, default_value = "frames")]
-    kind: String,
+    #[arg(long, value_enum, default_value_t = Kind::Frames)]
+    kind: Kind,
     /// Publish exactly these topics instead (comma separated), e.g. joint_state,detections.
     #[arg(long, value_delimiter = ',')]
     topics: Option<Vec<String>>,
@@ -102,12 +102,7 @@ fn topics_of(args: &Args) -> Result<Vec<TopicId>> {
             })
             .collect();
     }
-    Ok(match args.kind.as_str() {
-        "frames" => vec![TopicId::Frames, TopicId::JointState],
-        "detections" => vec![TopicId::Detections, TopicId::JointState],
-        "all" => TopicId::ALL.to_vec(),
-        other => bail!("--kind: `{other}` is not frames, detections or all"),
-    })
+    Ok(args.kind.topics())
 }
 
 fn run(args: Args) -> Result<()> {
