@@ -42,9 +42,9 @@ fn poses() -> Vec<Vec<f64>> {
         .collect()
 }
 
-fn frames() -> Vec<[Mat; 2]> {
+fn frames(poses: &[Vec<f64>]) -> Vec<[Mat; 2]> {
     let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
-    poses()
+    poses
         .iter()
         .enumerate()
         .map(|(i, q)| {
@@ -62,14 +62,30 @@ fn frames() -> Vec<[Mat; 2]> {
         .collect()
 }
 
-/// Median and range of per-round ratios `a / b`.
-fn spread(mut ratios: Vec<f64>) -> (f64, f64, f64) {
+/// Prints the median and range of the per-round ratios `a / b` of
+/// [`interleaved`]'s `times` over `n` frames, and the middle round's times
+/// per frame.
+fn report(what: &str, names: [&str; 2], times: &[(Duration, Duration)], n: usize) {
+    let mut ratios: Vec<f64> = times
+        .iter()
+        .map(|(a, b)| a.as_secs_f64() / b.as_secs_f64())
+        .collect();
     ratios.sort_by(f64::total_cmp);
-    (
+    let (median, lo, hi) = (
         ratios[ratios.len() / 2],
         ratios[0],
         ratios[ratios.len() - 1],
-    )
+    );
+    let per_frame = |d: Duration| d.as_secs_f64() * 1e3 / n as f64;
+    let (a, b) = times[times.len() / 2];
+    println!(
+        "ratio {what} per stereo frame: {median:.3} (range {lo:.3} to {hi:.3} over {} rounds of {n} frames; {} {:.2} ms, {} {:.2} ms)",
+        times.len(),
+        names[0],
+        per_frame(a),
+        names[1],
+        per_frame(b)
+    );
 }
 
 /// Times `a` and `b` on each of `n` items in turn, alternating which goes
@@ -110,42 +126,25 @@ fn ratios(_: &mut Criterion) {
     } else {
         1
     };
-    let frames = frames();
+    let poses = poses();
+    let frames = frames(&poses);
     let n = frames.len();
     let mut stock = Detector::new(false).unwrap();
     let mut ours = Detector::new(true).unwrap();
+    let detect = |detector: &mut Detector, i: usize| {
+        black_box((
+            detector.detect(&frames[i][0]).unwrap(),
+            detector.detect(&frames[i][1]).unwrap(),
+        ));
+    };
     let times = interleaved(
         rounds,
         n,
-        |i| {
-            black_box((
-                ours.detect(&frames[i][0]).unwrap(),
-                ours.detect(&frames[i][1]).unwrap(),
-            ));
-        },
-        |i| {
-            black_box((
-                stock.detect(&frames[i][0]).unwrap(),
-                stock.detect(&frames[i][1]).unwrap(),
-            ));
-        },
+        |i| detect(&mut ours, i),
+        |i| detect(&mut stock, i),
     );
-    let per_frame = |d: Duration| d.as_secs_f64() * 1e3 / n as f64;
-    let (median, lo, hi) = spread(
-        times
-            .iter()
-            .map(|(a, b)| a.as_secs_f64() / b.as_secs_f64())
-            .collect(),
-    );
-    let (a, b) = times[times.len() / 2];
-    println!(
-        "ratio ours / stock detectMarkers per stereo frame: {median:.3} (range {lo:.3} to {hi:.3} over {rounds} rounds of {n} frames; ours {:.2} ms, stock {:.2} ms)",
-        per_frame(a),
-        per_frame(b)
-    );
+    report("ours / stock detectMarkers", ["ours", "stock"], &times, n);
     let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
-    let poses = poses();
-    let mut tracker = Detector::new(true).unwrap();
     let times = interleaved(
         rounds,
         n,
@@ -156,29 +155,13 @@ fn ratios(_: &mut Criterion) {
                     .unwrap(),
             );
         },
-        |i| {
-            black_box((
-                tracker.detect(&frames[i][0]).unwrap(),
-                tracker.detect(&frames[i][1]).unwrap(),
-            ));
-        },
+        |i| detect(&mut ours, i),
     );
-    let (median, lo, hi) = spread(
-        times
-            .iter()
-            .map(|(a, b)| a.as_secs_f64() / b.as_secs_f64())
-            .collect(),
-    );
-    let (a, b) = times[times.len() / 2];
-    println!(
-        "ratio render / track per stereo frame: {median:.3} (range {lo:.3} to {hi:.3} over {rounds} rounds; render {:.2} ms, track {:.2} ms)",
-        per_frame(a),
-        per_frame(b)
-    );
+    report("render / track", ["render", "track"], &times, n);
 }
 
 fn bench(c: &mut Criterion) {
-    let frames = frames();
+    let frames = frames(&poses());
     let mut group = c.benchmark_group("detect_stereo_frame");
     for (name, mirrored) in [
         ("baseline: stock dictionary", false),
