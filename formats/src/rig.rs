@@ -224,6 +224,32 @@ struct JointEntry {
 /// Joints a joint state message carries.
 const MAX_ARM_JOINTS: usize = 8;
 
+impl From<&JointEntry> for DhJoint {
+    fn from(j: &JointEntry) -> Self {
+        Self {
+            a: j.a,
+            alpha: j.alpha,
+            d: j.d,
+            theta_offset: j.theta_offset,
+            min: j.min,
+            max: j.max,
+        }
+    }
+}
+
+impl From<&DhJoint> for JointEntry {
+    fn from(j: &DhJoint) -> Self {
+        Self {
+            a: j.a,
+            alpha: j.alpha,
+            d: j.d,
+            theta_offset: j.theta_offset,
+            min: j.min,
+            max: j.max,
+        }
+    }
+}
+
 fn default_min() -> f64 {
     -std::f64::consts::PI
 }
@@ -240,12 +266,7 @@ pub fn read(path: impl AsRef<Path>) -> Result<Rig, FormatError> {
 
 /// Parses rig TOML text; `path` is only used in error messages.
 pub fn parse(path: &Path, text: &str) -> Result<Rig, FormatError> {
-    let file: RigFile = toml::from_str(text).map_err(|e| {
-        let line = e
-            .span()
-            .map(|s| 1 + text[..s.start.min(text.len())].matches('\n').count());
-        FormatError::new(path, line.map(|l| format!("line {l}")), e.message())
-    })?;
+    let file = rig_file(path, text)?;
     if file.camera.len() != 2 {
         return Err(FormatError::at_key(
             path,
@@ -390,25 +411,26 @@ fn parse_dh(path: &Path, rows: &[JointEntry]) -> Result<Vec<DhJoint>, FormatErro
                 "min is above max",
             ));
         }
-        joints.push(DhJoint {
-            a: j.a,
-            alpha: j.alpha,
-            d: j.d,
-            theta_offset: j.theta_offset,
-            min: j.min,
-            max: j.max,
-        });
+        joints.push(DhJoint::from(j));
     }
     Ok(joints)
 }
 
-/// The files a rig file refers to (camera calibration files, the URDF),
-/// resolved against its folder: what a copy of the rig needs beside it.
-pub fn referenced_files(path: impl AsRef<Path>) -> Result<Vec<std::path::PathBuf>, FormatError> {
-    let path = path.as_ref();
-    let text = read_text(path)?;
-    let file: RigFile =
-        toml::from_str(&text).map_err(|e| FormatError::new(path, None, e.message()))?;
+/// The rig file's TOML, or an error naming its line.
+fn rig_file(path: &Path, text: &str) -> Result<RigFile, FormatError> {
+    toml::from_str(text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| 1 + text[..s.start.min(text.len())].matches('\n').count());
+        FormatError::new(path, line.map(|l| format!("line {l}")), e.message())
+    })
+}
+
+/// The files the rig text `text` of the file at `path` refers to (camera
+/// calibration files, the URDF), resolved against its folder: what a copy
+/// of the rig needs beside it.
+pub fn referenced_files(path: &Path, text: &str) -> Result<Vec<std::path::PathBuf>, FormatError> {
+    let file = rig_file(path, text)?;
     let dir = path.parent().unwrap_or(Path::new(""));
     Ok(file
         .camera
@@ -440,18 +462,7 @@ pub fn to_toml(rig: &Rig) -> String {
                 None,
                 None,
                 None,
-                Some(
-                    rows.iter()
-                        .map(|j| JointEntry {
-                            a: j.a,
-                            alpha: j.alpha,
-                            d: j.d,
-                            theta_offset: j.theta_offset,
-                            min: j.min,
-                            max: j.max,
-                        })
-                        .collect(),
-                ),
+                Some(rows.iter().map(JointEntry::from).collect()),
             ),
             ArmModel::Chain(c) => {
                 let s = c.source.as_ref().expect("a chain arm comes from a URDF");

@@ -106,13 +106,14 @@ impl WriterOptions {
     /// files it refers to (calibration files, URDF) under their names, so
     /// the recording holds the whole robot description. Returns the rig.
     pub fn attach_rig(&mut self, path: &Path) -> Result<geometry::Rig, formats::FormatError> {
-        let rig = formats::rig::read(path)?;
         let text = formats::read_text(path)?;
+        let rig = formats::rig::parse(path, &text)?;
+        let referenced = formats::rig::referenced_files(path, &text)?;
         self.metadata
             .push(("rig".into(), BTreeMap::from([("toml".into(), text)])));
         self.attachments
             .push(("rig.toml".into(), path.to_path_buf()));
-        for file in formats::rig::referenced_files(path)? {
+        for file in referenced {
             self.attach(&file);
         }
         Ok(rig)
