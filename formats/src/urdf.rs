@@ -30,6 +30,15 @@ use crate::{FormatError, read_text};
 /// URDF lengths are metres; ours are millimetres.
 const MM_PER_M: f64 = 1000.0;
 
+/// Our units per URDF unit of a joint's value: mm per m for a prismatic
+/// joint, 1 for a revolute one (radians either way).
+fn value_scale(kind: JointKind) -> f64 {
+    match kind {
+        JointKind::Prismatic => MM_PER_M,
+        JointKind::Revolute => 1.0,
+    }
+}
+
 /// Reads the chain from `base_link` to `tip_link` of the URDF at `path`.
 pub fn read(path: impl AsRef<Path>, base_link: &str, tip_link: &str) -> Result<Chain, FormatError> {
     let path = path.as_ref();
@@ -286,11 +295,7 @@ pub fn parse(
                     ));
                 }
             };
-            let scale = if kind == JointKind::Prismatic {
-                MM_PER_M
-            } else {
-                1.0
-            };
+            let scale = value_scale(kind);
             inputs.push(JointInfo {
                 name: j.name.to_string(),
                 kind,
@@ -322,15 +327,8 @@ pub fn parse(
                         format!("joint {:?} mimics {of:?}, itself a mimic joint", j.name),
                     ));
                 }
-                let scale = if kind == JointKind::Prismatic {
-                    MM_PER_M
-                } else {
-                    1.0
-                };
-                let master_scale = match kind_of(&parser, master)? {
-                    Some(JointKind::Prismatic) => MM_PER_M,
-                    _ => 1.0,
-                };
+                let scale = value_scale(kind);
+                let master_scale = kind_of(&parser, master)?.map_or(1.0, value_scale);
                 JointValue::Mimic {
                     of: input_of(&parser, master)?,
                     multiplier: multiplier * scale / master_scale,
