@@ -112,6 +112,38 @@ impl CalibrationFile {
         self
     }
 
+    /// Fails unless the calibration (read from `path`) was made for the
+    /// rig's arm: the same joint names, one offset per joint.
+    pub fn check_arm(&self, path: &Path, rig: &Rig) -> Result<(), FormatError> {
+        let Some(arm) = &rig.arm else { return Ok(()) };
+        if let Some(names) = &self.joint_names
+            && *names != arm.joint_names()
+        {
+            return Err(FormatError::at_key(
+                path,
+                "joint_names",
+                format!(
+                    "{names:?} are not the rig's arm joints {:?}",
+                    arm.joint_names()
+                ),
+            ));
+        }
+        if let Some(offsets) = &self.joint_offsets
+            && offsets.len() != arm.dof()
+        {
+            return Err(FormatError::at_key(
+                path,
+                "joint_offsets",
+                format!(
+                    "{} offsets but the rig's arm has {} joints",
+                    offsets.len(),
+                    arm.dof()
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// The mirror cameras, with the intrinsics of the rig's real cameras.
     pub fn mirror_cameras(&self, rig: &Rig) -> [Camera; 2] {
         let pose = |k: usize| {
@@ -248,6 +280,36 @@ mod tests {
         assert!(
             e.starts_with("c.json: key cameras[1].camera_from_world: is not a rotation"),
             "{e}"
+        );
+    }
+
+    #[test]
+    fn a_calibration_for_other_joints_is_refused_naming_the_key() {
+        let scene = nico_scene();
+        let cams = scene.rig.cameras;
+        let p = Path::new("c.json");
+        let cal = CalibrationFile::new(
+            "joint",
+            None,
+            &scene.rig.names,
+            &cams,
+            Some(&[0.0; 4]),
+            0.5,
+            10,
+        )
+        .with_joint_names(&scene.rig);
+        assert_eq!(cal.check_arm(p, &scene.rig), Ok(()));
+        let mut renamed = cal.clone();
+        renamed.joint_names = Some(vec!["a".into(), "b".into(), "c".into(), "d".into()]);
+        let e = renamed.check_arm(p, &scene.rig).unwrap_err().to_string();
+        assert!(e.starts_with("c.json: key joint_names: [\"a\""), "{e}");
+        let mut short = cal.clone();
+        short.joint_names = None;
+        short.joint_offsets = Some(vec![0.0; 3]);
+        let e = short.check_arm(p, &scene.rig).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "c.json: key joint_offsets: 3 offsets but the rig's arm has 4 joints"
         );
     }
 }

@@ -247,7 +247,7 @@ fn run(cli: Cli) -> Result<()> {
             let rig_model = read_rig(&rig)?;
             let dof = rig_model.arm.as_ref().map(|a| a.dof());
             let cal = formats::calibration::read(&calibration)?;
-            crate::export::check_joint_names(&cal, &rig_model, &calibration)?;
+            cal.check_arm(&calibration, &rig_model)?;
             let data = formats::samples::read(&samples, dof)?;
             let errors = evaluate(
                 &rig_model,

@@ -15,33 +15,8 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
-use formats::calibration::CalibrationFile;
-use geometry::{ArmModel, Rig};
-
-/// Fails unless the calibration was made for the rig's arm joints.
-pub fn check_joint_names(cal: &CalibrationFile, rig: &Rig, cal_path: &Path) -> Result<()> {
-    if let (Some(names), Some(arm)) = (&cal.joint_names, &rig.arm)
-        && *names != arm.joint_names()
-    {
-        bail!(
-            "{}: key joint_names: {names:?} are not the rig's arm joints {:?}",
-            cal_path.display(),
-            arm.joint_names()
-        );
-    }
-    if let (Some(offsets), Some(arm)) = (&cal.joint_offsets, &rig.arm)
-        && offsets.len() != arm.dof()
-    {
-        bail!(
-            "{}: key joint_offsets: {} offsets but the rig's arm has {} joints",
-            cal_path.display(),
-            offsets.len(),
-            arm.dof()
-        );
-    }
-    Ok(())
-}
+use anyhow::{Context, Result};
+use geometry::ArmModel;
 
 fn write(path: PathBuf, text: &str, written: &mut Vec<PathBuf>) -> Result<()> {
     std::fs::write(&path, text).with_context(|| format!("{}: cannot write", path.display()))?;
@@ -54,7 +29,7 @@ fn write(path: PathBuf, text: &str, written: &mut Vec<PathBuf>) -> Result<()> {
 pub fn export(rig_path: &Path, cal_path: &Path, out: &Path) -> Result<Vec<PathBuf>> {
     let rig = formats::rig::read(rig_path)?;
     let cal = formats::calibration::read(cal_path)?;
-    check_joint_names(&cal, &rig, cal_path)?;
+    cal.check_arm(cal_path, &rig)?;
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
     let mut written = Vec::new();
     write(
