@@ -148,10 +148,12 @@ impl Distortion {
     pub fn jacobian(&self, xy: &Vector2<f64>) -> Matrix2<f64> {
         let (x, y) = (xy.x, xy.y);
         let (s, ds) = self.radial_factor(x * x + y * y);
+        // d x'/dy and d y'/dx are the same expression.
+        let off = 2.0 * x * y * ds + 2.0 * self.p1 * x + 2.0 * self.p2 * y;
         Matrix2::new(
             s + 2.0 * x * x * ds + 2.0 * self.p1 * y + 6.0 * self.p2 * x,
-            2.0 * x * y * ds + 2.0 * self.p1 * x + 2.0 * self.p2 * y,
-            2.0 * x * y * ds + 2.0 * self.p1 * x + 2.0 * self.p2 * y,
+            off,
+            off,
             s + 2.0 * y * y * ds + 6.0 * self.p1 * y + 2.0 * self.p2 * x,
         )
     }

@@ -19,9 +19,9 @@ pub struct Unpacked {
 /// Writes the recording's attachments into `out` and finds its config and
 /// placement.
 pub fn unpack(file: &Path, out: &Path) -> Result<Unpacked> {
-    let recording = Recording::open(file)?;
-    let metadata = recording.metadata()?;
-    let mirror = metadata
+    let extras = Recording::open(file)?.extras()?;
+    let mirror = extras
+        .metadata
         .get("run")
         .and_then(|run| run.get("mirror"))
         .and_then(|m| m.parse::<usize>().ok())
@@ -33,7 +33,7 @@ pub fn unpack(file: &Path, out: &Path) -> Result<Unpacked> {
         })?;
     let mut config = None;
     let mut names = Vec::new();
-    for (name, data) in recording.attachments()? {
+    for (name, data) in extras.attachments {
         // Only a plain file name: an attachment cannot write elsewhere.
         let Some(base) = Path::new(&name).file_name().filter(|b| *b == name.as_str()) else {
             bail!(

@@ -67,6 +67,16 @@ impl Contents {
     }
 }
 
+/// What a recording holds beside its messages.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Extras {
+    /// The attached files, `(name, contents)`, in file order (the rig, the
+    /// files it refers to, the plan, the run's config).
+    pub attachments: Vec<(String, Vec<u8>)>,
+    /// The metadata records by name (`run`, `rig`, `layouts`).
+    pub metadata: BTreeMap<String, BTreeMap<String, String>>,
+}
+
 /// A recording, checked. Reading streams from the file: memory stays at
 /// about one chunk whatever the file's size.
 pub struct Recording {
@@ -279,25 +289,17 @@ impl Recording {
         .map_err(|message| ReadError::new(&self.path, message))
     }
 
-    /// The attached files, `(name, contents)`, in file order (the rig, the
-    /// files it refers to, the plan, the run's config).
-    pub fn attachments(&self) -> Result<Vec<(String, Vec<u8>)>, ReadError> {
-        let mut out = Vec::new();
-        self.for_each_extra(|r| {
-            if let Record::Attachment { header, data, .. } = r {
-                out.push((header.name.clone(), data.to_vec()));
+    /// The attached files and the metadata records, read in one pass.
+    pub fn extras(&self) -> Result<Extras, ReadError> {
+        let mut out = Extras::default();
+        self.for_each_extra(|r| match r {
+            Record::Attachment { header, data, .. } => {
+                out.attachments.push((header.name.clone(), data.to_vec()));
             }
-        })?;
-        Ok(out)
-    }
-
-    /// The metadata records by name (`run`, `rig`, `layouts`).
-    pub fn metadata(&self) -> Result<BTreeMap<String, BTreeMap<String, String>>, ReadError> {
-        let mut out = BTreeMap::new();
-        self.for_each_extra(|r| {
-            if let Record::Metadata(m) = r {
-                out.insert(m.name.clone(), m.metadata.clone());
+            Record::Metadata(m) => {
+                out.metadata.insert(m.name.clone(), m.metadata.clone());
             }
+            _ => {}
         })?;
         Ok(out)
     }
