@@ -241,25 +241,6 @@ impl Run {
         let bus = Bus::new(&launch.prefix, "pipeline")?;
         let mut supervisor = Supervisor::new(&launch);
         let replayed = kind.topics();
-        supervisor.start(StageArgs::Replay {
-            file: file.to_path_buf(),
-            kind,
-            wait_subscribers: 1 + usize::from(self.record),
-        })?;
-        // Replay creates its topics' services lossless (publishers wait for
-        // the slowest subscriber); nothing may create them before it does.
-        let waited = Instant::now();
-        while !replayed
-            .iter()
-            .all(|t| bus.service_exists(*t).unwrap_or(false))
-        {
-            if waited.elapsed() > READY_WITHIN || !supervisor.is_running("replay") {
-                supervisor.stop();
-                bail!("replay did not create its services ({})", see(&launch.log));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        let _services = bus.open_all()?;
         let mut stages = Vec::new();
         if self.record {
             stages.push(StageArgs::Recorder {
@@ -287,6 +268,31 @@ impl Run {
         if kind == recorder::replay::Kind::Frames {
             stages.push(StageArgs::Tracker);
         }
+        // Each replayed topic waits for every stage that reads it.
+        let wait_subscribers = replayed
+            .iter()
+            .map(|t| subscribers_of(&stages, *t))
+            .min()
+            .unwrap_or(0);
+        supervisor.start(StageArgs::Replay {
+            file: file.to_path_buf(),
+            kind,
+            wait_subscribers,
+        })?;
+        // Replay creates its topics' services lossless (publishers wait for
+        // the slowest subscriber); nothing may create them before it does.
+        let waited = Instant::now();
+        while !replayed
+            .iter()
+            .all(|t| bus.service_exists(*t).unwrap_or(false))
+        {
+            if waited.elapsed() > READY_WITHIN || !supervisor.is_running("replay") {
+                supervisor.stop();
+                bail!("replay did not create its services ({})", see(&launch.log));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let _services = bus.open_all()?;
         for stage in stages {
             supervisor.start(stage)?;
         }
