@@ -5,9 +5,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 # The independent MCAP reader and the official Foxglove schemas, for the
-# recording tests (setup.sh made target/pyenv).
+# recording tests; OpenCV 5's stock ArUco detector, the real-image test's
+# reference (setup.sh made target/pyenv).
 target/pyenv/bin/pip install --quiet --disable-pip-version-check \
-    "mcap==1.6.*" "foxglove-schemas-protobuf==0.4.*" "websockets==15.*"
+    "mcap==1.6.*" "foxglove-schemas-protobuf==0.4.*" "websockets==15.*" \
+    "opencv-contrib-python-headless==5.0.0.93"
 # The official Foxglove WebSocket client library, for the live view's tests.
 if [ ! -d target/node/node_modules/@foxglove/ws-protocol ]; then
     npm install --prefix target/node --no-audit --no-fund --silent \

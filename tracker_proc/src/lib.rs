@@ -1,13 +1,14 @@
 //! ArUco detection that also finds markers seen mirror-reversed.
 //!
 //! A reflected marker does not decode with the stock dictionary (most
-//! `DICT_4X4_50` codes are not found at all when flipped). We build one
-//! dictionary holding the 50 codes and their mirror images, so a single
-//! `detectMarkers` pass per image finds both kinds and the index says which.
-//! A mirror image too close (Hamming distance, any rotation) to another code
-//! would make the flag unreliable; such codes are left out and reported by
-//! [`Detector::mirror_ambiguous_ids`]. Corners are refined to sub-pixel; the
-//! centre is the intersection of the diagonals.
+//! `DICT_4X4_50` codes are not found at all when flipped). OpenCV finds the
+//! candidate quadrilaterals; we read each against the 50 codes and their
+//! mirror images ([`decode`]), so one pass per image finds both kinds and
+//! says which, and place the corners on lines fitted to the marker's outer
+//! edges ([`refine`]). Four codes are their own mirror images turned
+//! ([`Detector::mirror_symmetric_ids`]): found either way, reported as
+//! printed. The centre is the intersection of the diagonals. Each choice is
+//! measured on real photographs by the `real_set` example ([`real_set`]).
 //!
 //! ```no_run
 //! let mut detector = tracker_proc::Detector::new(true)?;
@@ -18,113 +19,301 @@
 //! # Ok::<(), anyhow::Error>(())
 //! ```
 
+pub mod decode;
+pub mod real_set;
+pub mod refine;
 pub mod step;
 
+pub use decode::{Checks, CodeBook, Correction, Decoded, Reading, Refusal};
 pub use step::{Tracked, Tracker};
 
 use anyhow::{Context, Result};
 use messages::Marker;
 use opencv::aruco;
 use opencv::core::{self, Mat, Point2f, Ptr, Vector};
+use opencv::imgproc;
 use opencv::prelude::*;
 
-/// Markers of the stock dictionary.
-const BASE_MARKERS: i32 = 50;
-/// Smallest Hamming distance (over rotations) a mirror image must keep from
-/// every other code. The combined dictionary corrects no bits, so with 2 a
-/// single bit error yields no code rather than a wrong one. (Keeping the
-/// stock 1-bit correction would need 3 and lose 23 of the 50 ids.)
-const MIN_MIRROR_DISTANCE: i32 = 2;
+/// How the detector finds candidates, reads codes and places corners; each
+/// field is one lever measured on the real-image set (see the
+/// `real_set` example).
+#[derive(Debug, Clone, Copy)]
+pub struct Options {
+    /// Also find mirror-reversed markers.
+    pub mirrored: bool,
+    /// How many bits each code may correct.
+    pub correction: Correction,
+    /// Keep candidates that lie close to one another (a marker printed on a
+    /// white square, markers on a sheet of labels). OpenCV 4.6 keeps only the
+    /// larger of two close candidates: the white square's outline, which
+    /// reads as no code, instead of the marker inside it.
+    pub keep_close_candidates: bool,
+    /// Read a refused candidate again on corners fitted to its edges.
+    pub reread_refined: bool,
+    /// How the corners are placed.
+    pub refine: Refine,
+    /// What a candidate must look like to be read as a marker.
+    pub checks: Checks,
+}
+
+/// Corner placement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refine {
+    /// The candidate's polygon corners (whole pixels), as OpenCV's default.
+    None,
+    /// OpenCV's `cornerSubPix` with its default 5 px half-window.
+    Subpix,
+    /// Lines fitted to the four outer edges ([`refine::refine_corners`]).
+    Lines,
+}
+
+impl Options {
+    /// Our defaults; with `mirrored`, mirror-reversed markers too.
+    pub fn new(mirrored: bool) -> Self {
+        Self {
+            mirrored,
+            correction: Correction::None,
+            keep_close_candidates: true,
+            reread_refined: true,
+            refine: Refine::Lines,
+            checks: Checks::default(),
+        }
+    }
+}
 
 /// An ArUco detector over `DICT_4X4_50`, optionally with mirror images.
+///
+/// OpenCV finds the candidate quadrilaterals; the codes are read here
+/// ([`decode`]) so that each code corrects as many bits as its distance to
+/// the others (mirror images included) allows, and a candidate that is no
+/// clean two-tone code is refused; the corners come from the outer edges
+/// ([`refine`]).
 pub struct Detector {
+    options: Options,
     dictionary: Ptr<aruco::Dictionary>,
     params: Ptr<aruco::DetectorParameters>,
-    /// Combined index -> (id, mirrored).
-    index: Vec<(u32, bool)>,
-    ambiguous: Vec<u32>,
+    book: CodeBook,
+    grey: Mat,
 }
 
 impl Detector {
-    /// A detector; with `mirrored`, it also finds mirror-reversed markers.
+    /// A detector with our defaults; with `mirrored`, it also finds
+    /// mirror-reversed markers.
     pub fn new(mirrored: bool) -> Result<Self> {
-        let base =
+        Self::with_options(Options::new(mirrored))
+    }
+
+    /// A detector with the given levers.
+    pub fn with_options(options: Options) -> Result<Self> {
+        let dictionary =
             aruco::get_predefined_dictionary(aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50)?;
-        let marker_size = base.marker_size();
-        let base_bytes = base.bytes_list();
-        let mut index: Vec<(u32, bool)> = (0..BASE_MARKERS as u32).map(|id| (id, false)).collect();
-        let mut ambiguous = Vec::new();
-        let mut rows = Vector::<Mat>::new();
-        rows.push(
-            base_bytes
-                .row_range(&core::Range::new(0, BASE_MARKERS)?)?
-                .try_clone()?,
-        );
-        if mirrored {
-            let mut accepted: Vec<Mat> = Vec::new();
-            for id in 0..BASE_MARKERS {
-                let bits = aruco::Dictionary::get_bits_from_byte_list(
-                    &base_bytes.row(id)?.try_clone()?,
-                    marker_size,
-                )?;
-                let mut flipped = Mat::default();
-                core::flip(&bits, &mut flipped, 1)?;
-                let mut nearest = i32::MAX;
-                for other in 0..BASE_MARKERS {
-                    nearest = nearest.min(base.get_distance_to_id(&flipped, other, true)?);
-                }
-                for previous in &accepted {
-                    let mut d = i32::MAX;
-                    for r in 0..4 {
-                        let mut rotated = previous.clone();
-                        for _ in 0..r {
-                            let mut t = Mat::default();
-                            core::rotate(&rotated, &mut t, core::ROTATE_90_CLOCKWISE)?;
-                            rotated = t;
-                        }
-                        d = d.min(core::norm2(
-                            &flipped,
-                            &rotated,
-                            core::NORM_HAMMING,
-                            &core::no_array(),
-                        )? as i32);
-                    }
-                    nearest = nearest.min(d);
-                }
-                if nearest < MIN_MIRROR_DISTANCE {
-                    ambiguous.push(id as u32);
-                    continue;
-                }
-                rows.push(aruco::Dictionary::get_byte_list_from_bits(&flipped)?);
-                accepted.push(flipped);
-                index.push((id as u32, true));
-            }
-        }
-        let mut bytes = Mat::default();
-        core::vconcat(&rows, &mut bytes)?;
-        let correction = if mirrored {
-            0
-        } else {
-            base.max_correction_bits()
-        };
-        let dictionary = Ptr::new(aruco::Dictionary::new(&bytes, marker_size, correction)?);
         let mut params = aruco::DetectorParameters::create()?;
-        params.set_corner_refinement_method(aruco::CornerRefineMethod::CORNER_REFINE_SUBPIX as i32);
+        params.set_corner_refinement_method(aruco::CornerRefineMethod::CORNER_REFINE_NONE as i32);
+        if options.keep_close_candidates {
+            params.set_min_marker_distance_rate(0.0);
+        }
         Ok(Self {
+            book: CodeBook::new(options.mirrored, options.correction)?,
+            options,
             dictionary,
             params,
-            index,
-            ambiguous,
+            grey: Mat::default(),
         })
     }
 
-    /// Ids whose mirror image is left out (the mirrored flag would be unreliable).
-    pub fn mirror_ambiguous_ids(&self) -> &[u32] {
-        &self.ambiguous
+    /// Ids whose mirror image is the code turned (8, 9, 17, 47): found when
+    /// mirrored, but reported as printed, since the image cannot tell.
+    pub fn mirror_symmetric_ids(&self) -> &[u32] {
+        self.book.mirror_symmetric_ids()
     }
 
-    /// Finds the markers of a mono8 (or BGR8) image.
-    pub fn detect(&mut self, image: &impl core::ToInputArray) -> Result<Vec<Marker>> {
+    /// Finds the markers of a mono8 (or BGR8) image (a `Mat`, or a view into one).
+    pub fn detect<M: MatTraitConst + core::ToInputArray>(
+        &mut self,
+        image: &M,
+    ) -> Result<Vec<Marker>> {
+        if image.channels() == 3 {
+            let mut grey = std::mem::take(&mut self.grey);
+            imgproc::cvt_color_def(image, &mut grey, imgproc::COLOR_BGR2GRAY)?;
+            let found = self.detect_grey(&grey);
+            self.grey = grey;
+            found
+        } else {
+            self.detect_grey(image)
+        }
+    }
+
+    /// Every candidate quadrilateral of a grey image (OpenCV's accepted ones
+    /// as well as the ones its stock reading refused), in OpenCV's corner
+    /// order, with what reading it gave: for finding out why a marker is
+    /// missed.
+    pub fn candidates<M: MatTraitConst + core::ToInputArray>(
+        &mut self,
+        grey: &M,
+    ) -> Result<Vec<([Point2f; 4], Reading)>> {
+        let mut out = Vec::new();
+        for quad in self.quads(grey)? {
+            out.push(self.read(grey, quad)?);
+        }
+        Ok(out)
+    }
+
+    /// Whether a refused candidate deserves a second look on fitted corners:
+    /// a near miss, not a patch without contrast or a blob.
+    fn worth_rereading(&self, refusal: &Refusal) -> bool {
+        self.options.reread_refined
+            && matches!(
+                refusal,
+                Refusal::Border(..4)
+                    | Refusal::Margin(_)
+                    | Refusal::NoCode(..4)
+                    | Refusal::Ambiguous(_)
+            )
+    }
+
+    /// Reads one candidate; a refused one is read again on corners fitted to
+    /// its edges when that lever is on (whole-pixel polygon corners put the
+    /// cells of a small or steeply seen marker off by a fraction of a cell).
+    fn read<M: MatTraitConst + core::ToInputArray>(
+        &self,
+        grey: &M,
+        quad: [Point2f; 4],
+    ) -> Result<([Point2f; 4], Reading)> {
+        let first = self.book.read(grey, &quad, &self.options.checks)?;
+        // Worth a second look: a near miss, not a patch without contrast or a
+        // pattern on dark ground.
+        let near_miss = matches!(
+            first,
+            Err(Refusal::Border(..4)
+                | Refusal::Margin(_)
+                | Refusal::NoCode(..4)
+                | Refusal::Ambiguous(_))
+        );
+        if !near_miss || !self.options.reread_refined {
+            return Ok((quad, first));
+        }
+        let Some(fitted) = refine::refine_corners(grey, &quad) else {
+            return Ok((quad, first));
+        };
+        let second = self.book.read(grey, &fitted, &self.options.checks)?;
+        Ok(if second.is_ok() {
+            (fitted, second)
+        } else {
+            (quad, first)
+        })
+    }
+
+    fn quads<M: MatTraitConst + core::ToInputArray>(&self, grey: &M) -> Result<Vec<[Point2f; 4]>> {
+        let mut corners = Vector::<Vector<Point2f>>::new();
+        let mut ids = Vector::<i32>::new();
+        let mut rejected = Vector::<Vector<Point2f>>::new();
+        aruco::detect_markers(
+            grey,
+            &self.dictionary,
+            &mut corners,
+            &mut ids,
+            &self.params,
+            &mut rejected,
+        )
+        .context("ArUco detection")?;
+        Ok(corners
+            .iter()
+            .chain(rejected.iter())
+            .filter_map(|q| q.to_vec().try_into().ok())
+            .collect())
+    }
+
+    fn detect_grey<M: MatTraitConst + core::ToInputArray>(
+        &mut self,
+        grey: &M,
+    ) -> Result<Vec<Marker>> {
+        // Every candidate, read by us: OpenCV's accepted ones as well as the
+        // ones its stock reading refused.
+        let mut found: Vec<([Point2f; 4], Decoded)> = Vec::new();
+        let mut near_misses = Vec::new();
+        for quad in self.quads(grey)? {
+            match self.book.read(grey, &quad, &self.options.checks)? {
+                Ok(d) => found.push((quad, d)),
+                Err(refusal) if self.worth_rereading(&refusal) => near_misses.push(quad),
+                Err(_) => {}
+            }
+        }
+        // A near miss gets a second look unless it is another outline of a
+        // marker already read (the contours of one printed marker come in pairs).
+        for quad in near_misses {
+            if found.iter().any(|(q, _)| overlapping(q, &quad)) {
+                continue;
+            }
+            if let Some(fitted) = refine::refine_corners(grey, &quad)
+                && let Ok(d) = self.book.read(grey, &fitted, &self.options.checks)?
+            {
+                found.push((fitted, d));
+            }
+        }
+        let found: Vec<([Point2f; 4], Decoded)> = best_of_overlapping(found)
+            .into_iter()
+            .map(|(quad, d)| {
+                let k = d.rotation;
+                let ordered = [
+                    quad[k],
+                    quad[(k + 1) % 4],
+                    quad[(k + 2) % 4],
+                    quad[(k + 3) % 4],
+                ];
+                (ordered, d)
+            })
+            .collect();
+        let mut out = Vec::with_capacity(found.len());
+        for (quad, d) in found {
+            let quad = match self.options.refine {
+                Refine::None => quad,
+                Refine::Lines => refine::refine_corners(grey, &quad).unwrap_or(quad),
+                Refine::Subpix => subpix(grey, &quad)?,
+            };
+            let c: Vec<[f64; 2]> = quad
+                .iter()
+                .map(|p| [f64::from(p.x), f64::from(p.y)])
+                .collect();
+            let Some(center) = diagonal_intersection(&c) else {
+                continue;
+            };
+            let mut flat = [0.0; 8];
+            for (k, p) in c.iter().enumerate() {
+                flat[2 * k] = p[0];
+                flat[2 * k + 1] = p[1];
+            }
+            out.push(Marker {
+                id: d.id,
+                mirrored: u32::from(d.mirrored),
+                corners: flat,
+                center,
+            });
+        }
+        Ok(out)
+    }
+}
+
+/// OpenCV's stock pass, the baseline the benchmarks and the real-image set
+/// compare against: `detectMarkers` with `DICT_4X4_50` and default
+/// parameters (no corner refinement); printed markers only.
+pub struct StockPass {
+    dictionary: Ptr<aruco::Dictionary>,
+    params: Ptr<aruco::DetectorParameters>,
+}
+
+impl StockPass {
+    /// The stock dictionary and parameters.
+    pub fn new() -> Result<Self> {
+        Ok(Self {
+            dictionary: aruco::get_predefined_dictionary(
+                aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50,
+            )?,
+            params: aruco::DetectorParameters::create()?,
+        })
+    }
+
+    /// Ids and corners of the markers found.
+    pub fn detect(&self, image: &impl core::ToInputArray) -> Result<Vec<(u32, [Point2f; 4])>> {
         let mut corners = Vector::<Vector<Point2f>>::new();
         let mut ids = Vector::<i32>::new();
         let mut rejected = Vector::<Vector<Point2f>>::new();
@@ -137,36 +326,69 @@ impl Detector {
             &mut rejected,
         )
         .context("ArUco detection")?;
-        let mut out = Vec::with_capacity(ids.len());
-        for (i, quad) in ids.iter().zip(corners.iter()) {
-            let Some(&(id, mirrored)) = usize::try_from(i).ok().and_then(|i| self.index.get(i))
-            else {
-                continue;
-            };
-            let c: Vec<[f64; 2]> = quad
-                .iter()
-                .map(|p| [f64::from(p.x), f64::from(p.y)])
-                .collect();
-            if c.len() != 4 {
-                continue;
-            }
-            let Some(center) = diagonal_intersection(&c) else {
-                continue;
-            };
-            let mut flat = [0.0; 8];
-            for (k, p) in c.iter().enumerate() {
-                flat[2 * k] = p[0];
-                flat[2 * k + 1] = p[1];
-            }
-            out.push(Marker {
-                id,
-                mirrored: u32::from(mirrored),
-                corners: flat,
-                center,
-            });
-        }
-        Ok(out)
+        Ok(ids
+            .iter()
+            .zip(corners.iter())
+            .filter_map(|(id, q)| Some((u32::try_from(id).ok()?, q.to_vec().try_into().ok()?)))
+            .collect())
     }
+}
+
+/// One report per marker: of read candidates whose centres lie within half a
+/// side of each other (the contours of one printed marker), the one read
+/// with fewest corrected bits and the clearest cells.
+fn best_of_overlapping(mut found: Vec<([Point2f; 4], Decoded)>) -> Vec<([Point2f; 4], Decoded)> {
+    found.sort_by(|a, b| {
+        a.1.errors
+            .cmp(&b.1.errors)
+            .then(b.1.margin.total_cmp(&a.1.margin))
+    });
+    let mut kept: Vec<([Point2f; 4], Decoded)> = Vec::new();
+    for (q, d) in found {
+        if !kept.iter().any(|(kq, _)| overlapping(kq, &q)) {
+            kept.push((q, d));
+        }
+    }
+    kept
+}
+
+/// Whether two quadrilaterals are outlines of one marker: centres closer
+/// than half the longer of their shortest sides.
+fn overlapping(a: &[Point2f; 4], b: &[Point2f; 4]) -> bool {
+    let center = |q: &[Point2f; 4]| {
+        let s = q
+            .iter()
+            .fold((0.0f32, 0.0f32), |a, p| (a.0 + p.x, a.1 + p.y));
+        (s.0 / 4.0, s.1 / 4.0)
+    };
+    let side = |q: &[Point2f; 4]| {
+        (0..4)
+            .map(|k| {
+                let (a, b) = (q[k], q[(k + 1) % 4]);
+                (a.x - b.x).hypot(a.y - b.y)
+            })
+            .fold(f32::INFINITY, f32::min)
+    };
+    let ((ax, ay), (bx, by)) = (center(a), center(b));
+    (ax - bx).hypot(ay - by) < 0.5 * side(a).max(side(b))
+}
+
+/// OpenCV's corner refinement with its default window.
+fn subpix(grey: &impl core::ToInputArray, quad: &[Point2f; 4]) -> Result<[Point2f; 4]> {
+    let mut points = Vector::<Point2f>::from_iter(quad.iter().copied());
+    imgproc::corner_sub_pix(
+        grey,
+        &mut points,
+        core::Size::new(5, 5),
+        core::Size::new(-1, -1),
+        core::TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 30, 0.1)?,
+    )?;
+    Ok([
+        points.get(0)?,
+        points.get(1)?,
+        points.get(2)?,
+        points.get(3)?,
+    ])
 }
 
 /// Where the diagonals 0-2 and 1-3 of a quadrilateral cross.

@@ -125,7 +125,7 @@ fn the_stock_dictionary_misses_reversed_markers_ours_flags_them() {
         opencv::aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50,
     )
     .unwrap();
-    let mut stock = Detector::new(false).unwrap();
+    let stock = tracker_proc::StockPass::new().unwrap();
     let mut ours = Detector::new(true).unwrap();
     let (mut stock_found, mut ours_flagged) = (0, 0);
     for id in 0..50 {
@@ -157,16 +157,16 @@ fn the_stock_dictionary_misses_reversed_markers_ours_flags_them() {
             "id {id}"
         );
     }
-    let ambiguous = ours.mirror_ambiguous_ids().len();
+    let symmetric = ours.mirror_symmetric_ids().len();
     eprintln!(
-        "stock finds {stock_found}/50 reversed; ours flags {ours_flagged}/50; {ambiguous} left out as ambiguous"
+        "stock finds {stock_found}/50 reversed; ours flags {ours_flagged}/50; {symmetric} are their own mirror images"
     );
     assert_eq!(
         stock_found, 4,
         "the stock dictionary finds {stock_found} reversed markers"
     );
-    assert_eq!(ours_flagged + ambiguous, 50);
-    assert!(!ours.mirror_ambiguous_ids().contains(&ARM_MARKER_ID));
+    assert_eq!(ours_flagged + symmetric, 50);
+    assert!(!ours.mirror_symmetric_ids().contains(&ARM_MARKER_ID));
 }
 
 /// The stage's whole per-frame step, on a rendered stereo frame laid out as

@@ -1,0 +1,530 @@
+//! Reading a candidate quadrilateral's code: its cells, checks that it looks
+//! like a printed marker, and the nearest code of `DICT_4X4_50`, printed or
+//! mirror-reversed, within that code's own safe correction radius.
+//!
+//! OpenCV corrects the same number of bits for every code of a dictionary.
+//! With the mirror images added, codes sit at different distances from
+//! their nearest neighbour (2 to 5 bits), so each code gets the radius its
+//! own neighbourhood allows: `(distance - 1) / 2` bits. Within it, the read
+//! is nearer to this code than to any other, in any rotation.
+//!
+//! Other 4x4 dictionaries print codes that are not ours: `DICT_4X4_100` to
+//! `_1000` beyond id 49, AprilTag 16h5, and their mirror images. Most of our
+//! codes lie one bit from one of those, so correcting that bit would report
+//! a foreign marker as ours. [`Correction::SparingForeign`] (the default)
+//! corrects a code only where no foreign code lies within the radius.
+
+use anyhow::Result;
+use opencv::aruco;
+use opencv::core::{self, Mat, Point2f, Size, Vector};
+use opencv::imgproc;
+use opencv::prelude::*;
+
+/// Cells per side: 4 code cells and a black border cell each side.
+const CELLS: usize = 6;
+/// Pixels per cell in the rectified candidate.
+const CELL_PX: i32 = 6;
+/// Pixels of each cell's edge left out when averaging (perspective and blur
+/// smear the neighbours' ink into it).
+const CELL_MARGIN_PX: i32 = 1;
+
+/// A 4x4 code, row-major, `true` for a white cell.
+type Bits = [bool; 16];
+
+/// Rotates a code 90 degrees clockwise.
+fn rotate(b: &Bits) -> Bits {
+    let mut out = [false; 16];
+    for r in 0..4 {
+        for c in 0..4 {
+            out[c * 4 + (3 - r)] = b[r * 4 + c];
+        }
+    }
+    out
+}
+
+/// Mirrors a code left to right.
+fn flip(b: &Bits) -> Bits {
+    let mut out = [false; 16];
+    for r in 0..4 {
+        for c in 0..4 {
+            out[r * 4 + (3 - c)] = b[r * 4 + c];
+        }
+    }
+    out
+}
+
+fn hamming(a: &Bits, b: &Bits) -> u32 {
+    a.iter().zip(b).filter(|(x, y)| x != y).count() as u32
+}
+
+/// One code of the book.
+#[derive(Debug, Clone)]
+struct Entry {
+    id: u32,
+    mirrored: bool,
+    /// The code in its four rotations: `rotations[k]` is the code turned
+    /// k times 90 degrees clockwise.
+    rotations: [Bits; 4],
+    /// Bits this code may correct.
+    radius: u32,
+}
+
+/// A decoded candidate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decoded {
+    /// `DICT_4X4_50` id.
+    pub id: u32,
+    /// Read mirror-reversed.
+    pub mirrored: bool,
+    /// Quarter turns clockwise from the candidate's corner order to the code's.
+    pub rotation: usize,
+    /// Bits corrected.
+    pub errors: u32,
+    /// Smallest distance of a code cell's brightness from the threshold, as
+    /// a fraction of the black-to-white contrast: low when a cell is neither.
+    pub margin: f64,
+    /// The lead of this code over the next code or rotation.
+    pub gap: f64,
+    /// Black-to-white contrast, grey levels.
+    pub contrast: f64,
+    /// The border's grey level.
+    pub black: f64,
+}
+
+/// What reading a candidate gave: a marker, or why not.
+pub type Reading = std::result::Result<Decoded, Refusal>;
+
+/// Why a candidate was not read as a marker.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Refusal {
+    /// Too small: this many pixels on its shortest side.
+    Small(f64),
+    /// Too little contrast between the border and the brightest cell.
+    Contrast(f64),
+    /// This many border cells read white.
+    Border(u32),
+    /// A code cell this close to the threshold (fraction of the contrast).
+    Margin(f64),
+    /// The best code needs this many bits corrected, more than its radius.
+    NoCode(u32),
+    /// A foreign code (another 4x4 dictionary's) explains the cells best.
+    Foreign,
+    /// The best code beats the next one by only this much.
+    Ambiguous(f64),
+}
+
+/// How many bits a code may correct.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Correction {
+    /// None: exact codes only.
+    None,
+    /// Half the distance to the nearest other code of the book (normal and
+    /// mirrored, any rotation), rounded down, at most `max` bits.
+    OwnCodes {
+        /// Cap on the radius.
+        max: u32,
+    },
+    /// As [`Correction::OwnCodes`], and less than the distance to the nearest
+    /// code of another 4x4 dictionary, so that a cleanly printed foreign
+    /// marker is never read as one of ours.
+    SparingForeign {
+        /// Cap on the radius.
+        max: u32,
+    },
+}
+
+/// Checks that make a quadrilateral a printed marker rather than a pattern
+/// that happens to read as a code.
+#[derive(Debug, Clone, Copy)]
+pub struct Checks {
+    /// Border cells (of 20) that may read white.
+    pub border_errors: u32,
+    /// Level (fraction of the contrast above black) above which a border
+    /// cell reads white: well above half, since on a small or steeply seen
+    /// marker blur spreads the white code cells into the thin border.
+    pub border_level: f64,
+    /// Smallest white-to-black contrast, grey levels.
+    pub min_contrast: f64,
+    /// Shortest side, pixels: below one pixel per cell the cells cannot be
+    /// told apart, and blobs read as codes.
+    pub min_side: f64,
+    /// Smallest [`Decoded::margin`] accepted.
+    pub min_margin: f64,
+    /// Smallest lead of the best code over the next code or rotation (sum of
+    /// the cells' signed levels, each in contrast units).
+    pub min_gap: f64,
+}
+
+impl Default for Checks {
+    fn default() -> Self {
+        Self {
+            border_errors: 1,
+            border_level: 0.7,
+            min_contrast: 20.0,
+            min_side: 6.0,
+            min_margin: 0.05,
+            min_gap: 0.5,
+        }
+    }
+}
+
+/// The codes of a predefined 4x4 dictionary, in id order.
+fn codes(name: aruco::PREDEFINED_DICTIONARY_NAME) -> Result<Vec<Bits>> {
+    let dictionary = aruco::get_predefined_dictionary(name)?;
+    let bytes = dictionary.bytes_list();
+    (0..bytes.rows())
+        .map(|id| {
+            let m = aruco::Dictionary::get_bits_from_byte_list(&bytes.row(id)?, 4)?;
+            let mut bits = [false; 16];
+            for (k, b) in bits.iter_mut().enumerate() {
+                *b = *m.at_2d::<u8>(k as i32 / 4, k as i32 % 4)? != 0;
+            }
+            Ok(bits)
+        })
+        .collect()
+}
+
+/// 4x4 codes printed by other dictionaries (`DICT_4X4_1000` beyond id 49,
+/// which `_100` and `_250` share, and AprilTag 16h5), and their mirror images.
+fn foreign_codes() -> Result<Vec<Bits>> {
+    let mut out: Vec<Bits> = codes(aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_1000)?
+        .into_iter()
+        .skip(50)
+        .collect();
+    out.extend(codes(
+        aruco::PREDEFINED_DICTIONARY_NAME::DICT_APRILTAG_16h5,
+    )?);
+    let mirrored: Vec<Bits> = out.iter().map(flip).collect();
+    out.extend(mirrored);
+    Ok(out)
+}
+
+/// The codes of `DICT_4X4_50`, optionally with their mirror images, each with
+/// its correction radius.
+#[derive(Debug, Clone)]
+pub struct CodeBook {
+    entries: Vec<Entry>,
+    ambiguous: Vec<u32>,
+    /// Foreign codes (see [`Correction::SparingForeign`]): a read nearer to
+    /// one of these than to any of ours is refused.
+    decoys: Vec<Bits>,
+}
+
+impl CodeBook {
+    /// The book; with `mirrored`, mirror images too.
+    pub fn new(mirrored: bool, correction: Correction) -> Result<Self> {
+        let mut entries = Vec::new();
+        let mut ambiguous = Vec::new();
+        for (id, bits) in codes(aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50)?
+            .into_iter()
+            .enumerate()
+        {
+            let rotations = |b: Bits| {
+                let r1 = rotate(&b);
+                let r2 = rotate(&r1);
+                [b, r1, r2, rotate(&r2)]
+            };
+            let normal = rotations(bits);
+            entries.push(Entry {
+                id: id as u32,
+                mirrored: false,
+                rotations: normal,
+                radius: 0,
+            });
+            if mirrored {
+                let flipped = rotations(flip(&bits));
+                if normal.iter().any(|r| *r == flipped[0]) {
+                    // The mirror image is the code turned: a mirrored one reads
+                    // as printed, and the flag cannot be told.
+                    ambiguous.push(id as u32);
+                } else {
+                    entries.push(Entry {
+                        id: id as u32,
+                        mirrored: true,
+                        rotations: flipped,
+                        radius: 0,
+                    });
+                }
+            }
+        }
+        let distances: Vec<u32> = entries
+            .iter()
+            .enumerate()
+            .map(|(i, e)| {
+                let own = (1..4)
+                    .map(|r| hamming(&e.rotations[0], &e.rotations[r]))
+                    .min()
+                    .unwrap_or(16);
+                entries
+                    .iter()
+                    .enumerate()
+                    .filter(|(j, _)| *j != i)
+                    .flat_map(|(_, o)| o.rotations.iter().map(|r| hamming(&e.rotations[0], r)))
+                    .min()
+                    .unwrap_or(16)
+                    .min(own)
+            })
+            .collect();
+        let foreign = match correction {
+            Correction::SparingForeign { .. } => foreign_codes()?,
+            _ => Vec::new(),
+        };
+        for (e, d) in entries.iter_mut().zip(distances) {
+            let own = d.saturating_sub(1) / 2;
+            e.radius = match correction {
+                Correction::None => 0,
+                Correction::OwnCodes { max } => own.min(max),
+                Correction::SparingForeign { max } => {
+                    let nearest = foreign
+                        .iter()
+                        .flat_map(|f| e.rotations.iter().map(move |r| hamming(r, f)))
+                        .min()
+                        .unwrap_or(16);
+                    own.min(max).min(nearest.saturating_sub(1))
+                }
+            };
+        }
+        let decoys = foreign
+            .iter()
+            .flat_map(|f| {
+                let r1 = rotate(f);
+                let r2 = rotate(&r1);
+                [*f, r1, r2, rotate(&r2)]
+            })
+            .collect();
+        Ok(Self {
+            entries,
+            ambiguous,
+            decoys,
+        })
+    }
+
+    /// Ids whose mirror image is a rotation of the code: found either way,
+    /// reported as printed.
+    pub fn mirror_symmetric_ids(&self) -> &[u32] {
+        &self.ambiguous
+    }
+
+    /// Correction radius of each (id, mirrored) in the book.
+    pub fn radii(&self) -> Vec<(u32, bool, u32)> {
+        self.entries
+            .iter()
+            .map(|e| (e.id, e.mirrored, e.radius))
+            .collect()
+    }
+
+    /// The code that best explains the cells' brightness: each code cell's
+    /// signed distance from the threshold (as a fraction of the contrast) is
+    /// added where the code has white and subtracted where it has black, so
+    /// clear cells weigh more than doubtful ones. Accepted when the best is
+    /// one of ours (not a foreign code), its hard-read errors lie within its
+    /// radius, and it beats every other code and rotation by `min_gap`.
+    fn identify(
+        &self,
+        levels: &[f64; 16],
+        min_gap: f64,
+    ) -> std::result::Result<(u32, bool, usize, u32, f64), Refusal> {
+        let score = |code: &Bits| -> f64 {
+            levels
+                .iter()
+                .zip(code)
+                .map(|(l, &white)| if white { *l } else { -*l })
+                .sum()
+        };
+        let mut best: Option<(f64, usize, usize)> = None;
+        let mut second = f64::NEG_INFINITY;
+        for (i, e) in self.entries.iter().enumerate() {
+            for (r, code) in e.rotations.iter().enumerate() {
+                let s = score(code);
+                match best {
+                    Some((b, _, _)) if s <= b => second = second.max(s),
+                    _ => {
+                        if let Some((b, _, _)) = best {
+                            second = second.max(b);
+                        }
+                        best = Some((s, i, r));
+                    }
+                }
+            }
+        }
+        let Some((best_score, i, r)) = best else {
+            return Err(Refusal::NoCode(16));
+        };
+        let foreign = self
+            .decoys
+            .iter()
+            .map(score)
+            .fold(f64::NEG_INFINITY, f64::max);
+        if foreign >= best_score {
+            return Err(Refusal::Foreign);
+        }
+        second = second.max(foreign);
+        let e = &self.entries[i];
+        let bits: Bits = std::array::from_fn(|k| levels[k] > 0.0);
+        let errors = hamming(&bits, &e.rotations[r]);
+        if errors > e.radius {
+            return Err(Refusal::NoCode(errors));
+        }
+        if best_score - second < min_gap {
+            return Err(Refusal::Ambiguous(best_score - second));
+        }
+        Ok((e.id, e.mirrored, r, errors, best_score - second))
+    }
+
+    /// Reads the candidate with corners `quad` (OpenCV's candidate order) in
+    /// the grey `image`, or `None` when it is no marker of the book.
+    pub fn decode(
+        &self,
+        image: &impl core::ToInputArray,
+        quad: &[Point2f; 4],
+        checks: &Checks,
+    ) -> Result<Option<Decoded>> {
+        Ok(self.read(image, quad, checks)?.ok())
+    }
+
+    /// As [`CodeBook::decode`], saying why a candidate is refused.
+    pub fn read(
+        &self,
+        image: &impl core::ToInputArray,
+        quad: &[Point2f; 4],
+        checks: &Checks,
+    ) -> Result<Reading> {
+        let shortest = (0..4)
+            .map(|k| {
+                let (a, b) = (quad[k], quad[(k + 1) % 4]);
+                f64::from((a.x - b.x).hypot(a.y - b.y))
+            })
+            .fold(f64::INFINITY, f64::min);
+        if shortest < checks.min_side {
+            return Ok(Err(Refusal::Small(shortest)));
+        }
+        let cells = rectify(image, quad)?;
+        let is_border = |k: usize| {
+            let (r, c) = (k / CELLS, k % CELLS);
+            r == 0 || c == 0 || r == CELLS - 1 || c == CELLS - 1
+        };
+        let code_cells = || (1..CELLS - 1).flat_map(|r| (1..CELLS - 1).map(move |c| r * CELLS + c));
+        // Black is the border's level (its median cell, robust to a cell or two
+        // of glare); white the brightest code cell's.
+        let mut border: Vec<f64> = (0..CELLS * CELLS)
+            .filter(|&k| is_border(k))
+            .map(|k| cells[k])
+            .collect();
+        border.sort_by(f64::total_cmp);
+        let black = border[border.len() / 2];
+        let white = code_cells().map(|k| cells[k]).fold(f64::MIN, f64::max);
+        let contrast = white - black;
+        if contrast < checks.min_contrast {
+            return Ok(Err(Refusal::Contrast(contrast)));
+        }
+        let threshold = 0.5 * (black + white);
+        let border_white = border
+            .iter()
+            .filter(|&&m| m > black + checks.border_level * contrast)
+            .count() as u32;
+        if border_white > checks.border_errors {
+            return Ok(Err(Refusal::Border(border_white)));
+        }
+        let mut levels = [0.0; 16];
+        for (i, k) in code_cells().enumerate() {
+            levels[i] = (cells[k] - threshold) / contrast;
+        }
+        let margin = levels.iter().fold(f64::MAX, |m, l| m.min(l.abs()));
+        if margin < checks.min_margin {
+            return Ok(Err(Refusal::Margin(margin)));
+        }
+        Ok(self
+            .identify(&levels, checks.min_gap)
+            .map(|(id, mirrored, rotation, errors, gap)| Decoded {
+                id,
+                mirrored,
+                rotation,
+                errors,
+                margin,
+                gap,
+                contrast,
+                black,
+            }))
+    }
+}
+
+/// Mean brightness of each of a candidate's 6x6 cells (border included),
+/// row-major.
+type Cells = [f64; CELLS * CELLS];
+
+/// Warps the candidate to a square of 6x6 cells of `CELL_PX` pixels and
+/// averages the inside of each cell.
+fn rectify(image: &impl core::ToInputArray, quad: &[Point2f; 4]) -> Result<Cells> {
+    let n = CELLS as i32 * CELL_PX;
+    // Corners at pixel edges, so that each cell spans whole pixels.
+    let (lo, hi) = (-0.5, n as f32 - 0.5);
+    let dst = Vector::<Point2f>::from_iter([
+        Point2f::new(lo, lo),
+        Point2f::new(hi, lo),
+        Point2f::new(hi, hi),
+        Point2f::new(lo, hi),
+    ]);
+    let src = Vector::<Point2f>::from_iter(quad.iter().copied());
+    let transform = imgproc::get_perspective_transform(&src, &dst, core::DECOMP_LU)?;
+    let mut warped = Mat::default();
+    imgproc::warp_perspective(
+        image,
+        &mut warped,
+        &transform,
+        Size::new(n, n),
+        imgproc::INTER_LINEAR,
+        core::BORDER_REPLICATE,
+        core::Scalar::default(),
+    )?;
+    let mut sums = [0u32; CELLS * CELLS];
+    let mut counts = [0u32; CELLS * CELLS];
+    let keep = CELL_MARGIN_PX..CELL_PX - CELL_MARGIN_PX;
+    for y in 0..n {
+        if !keep.contains(&(y % CELL_PX)) {
+            continue;
+        }
+        let row = warped.at_row::<u8>(y)?;
+        for x in (0..n).filter(|x| keep.contains(&(x % CELL_PX))) {
+            let k = (y / CELL_PX) as usize * CELLS + (x / CELL_PX) as usize;
+            sums[k] += u32::from(row[x as usize]);
+            counts[k] += 1;
+        }
+    }
+    Ok(std::array::from_fn(|k| {
+        f64::from(sums[k]) / f64::from(counts[k].max(1))
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn radii_follow_the_distances_between_codes() {
+        let stock = CodeBook::new(false, Correction::OwnCodes { max: 8 }).unwrap();
+        // Stock DICT_4X4_50 codes are at least 4 bits apart (in any rotation):
+        // 1 bit each, and 2 for id 23, whose nearest neighbour is 5 bits away.
+        for (id, _, r) in stock.radii() {
+            assert_eq!(r, if id == 23 { 2 } else { 1 }, "id {id}");
+        }
+        let capped = CodeBook::new(false, Correction::OwnCodes { max: 1 }).unwrap();
+        assert!(capped.radii().iter().all(|&(_, _, r)| r == 1));
+        let both = CodeBook::new(true, Correction::OwnCodes { max: 8 }).unwrap();
+        assert_eq!(both.mirror_symmetric_ids(), &[8, 9, 17, 47]);
+        assert_eq!(both.radii().len(), 96);
+        let zero = both.radii().iter().filter(|r| r.2 == 0).count();
+        assert!(zero > 0 && zero < 96, "{zero} codes with no correction");
+        assert!(both.radii().iter().all(|&(_, _, r)| r <= 1));
+    }
+
+    #[test]
+    fn rotate_four_times_is_identity_and_flip_twice_too() {
+        let mut b = [false; 16];
+        for k in [0, 3, 5, 6, 11] {
+            b[k] = true;
+        }
+        assert_eq!(rotate(&rotate(&rotate(&rotate(&b)))), b);
+        assert_ne!(rotate(&b), b);
+        assert_eq!(flip(&flip(&b)), b);
+    }
+}
