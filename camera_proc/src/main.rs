@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use camera_proc::source::{Captures, ImagePairs};
-use camera_proc::stage;
+use camera_proc::stage::{self, Pace};
 use clap::{Parser, Subcommand};
 use geometry::sim::Facing;
 
@@ -44,6 +44,11 @@ enum Source {
         /// Frame rate, Hz.
         #[arg(long, default_value_t = 30.0)]
         fps: f64,
+        /// Instead of a rate: wait for N frame subscribers (the tracker, the
+        /// recorder), then publish each pair as soon as all have room, so
+        /// none is lost. Start this stage before its subscribers.
+        #[arg(long, value_name = "N", conflicts_with = "fps")]
+        lockstep: Option<usize>,
     },
     /// Capture from a side-by-side stereo device or video file, or two devices.
     Device {
@@ -59,6 +64,12 @@ enum Source {
         /// a live device always delivers at its own).
         #[arg(long)]
         fps: Option<f64>,
+        /// Play a video file in lockstep instead of at a rate: wait for N
+        /// frame subscribers (the tracker, the recorder), then publish each
+        /// pair as soon as all have room, so none is lost. Start this stage
+        /// before its subscribers.
+        #[arg(long, value_name = "N", conflicts_with = "fps")]
+        lockstep: Option<usize>,
     },
     /// Render one stereo pair of the simulated scene to PNG files (debugging).
     Snapshot {
@@ -85,14 +96,24 @@ fn main() -> ExitCode {
             fps,
             tail_frames,
         } => stage::run_sim(&prefix, mirror, fps, tail_frames),
-        Source::Files { prefix, dir, fps } => {
-            ImagePairs::open(&dir).and_then(|s| stage::run_source(&prefix, s, Some(fps)))
+        Source::Files {
+            prefix,
+            dir,
+            fps,
+            lockstep,
+        } => {
+            let pace = match lockstep {
+                Some(subscribers) => Pace::Lockstep { subscribers },
+                None => Pace::Rate(fps),
+            };
+            ImagePairs::open(&dir).and_then(|s| stage::run_source(&prefix, s, pace))
         }
         Source::Device {
             prefix,
             source,
             right,
             fps,
+            lockstep,
         } => {
             let captures = match right {
                 Some(r) => Captures::pair(&source, &r),
@@ -104,10 +125,18 @@ fn main() -> ExitCode {
                 {
                     anyhow::bail!("--fps must be in (0, 1000]");
                 }
-                // A file plays at --fps or its own rate; a device at its own.
-                let rate = c.file_rate().map(|own| fps.unwrap_or(own));
-                tracing::info!(rate_hz = rate, "playing");
-                stage::run_source(&prefix, c, rate)
+                // A file plays at --fps or its own rate, or in lockstep; a
+                // device at its own rate.
+                let pace = match (c.file_rate(), lockstep) {
+                    (None, Some(_)) => anyhow::bail!(
+                        "--lockstep needs a video file: a live device delivers at its own rate"
+                    ),
+                    (Some(_), Some(subscribers)) => Pace::Lockstep { subscribers },
+                    (Some(own), None) => Pace::Rate(fps.unwrap_or(own)),
+                    (None, None) => Pace::AsDelivered,
+                };
+                tracing::info!(?pace, "playing");
+                stage::run_source(&prefix, c, pace)
             })
         }
         Source::Snapshot {

@@ -117,17 +117,51 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
     Ok(())
 }
 
-/// Real footage: publishes `source`'s pairs at `fps`, or as fast as a
-/// device delivers them, until it ends.
-pub fn run_source(prefix: &str, mut source: impl StereoSource, fps: Option<f64>) -> Result<()> {
+/// How real footage is paced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pace {
+    /// One pair every 1/rate seconds (a file at its own rate or `--fps`).
+    Rate(f64),
+    /// As fast as the source delivers (a live device).
+    AsDelivered,
+    /// Once `subscribers` subscribers are attached to the frames, each pair
+    /// as soon as the slowest of them has room: the services are created
+    /// lossless, so no frame is overwritten unread (a file through the
+    /// tracker, as replay does with recordings).
+    Lockstep {
+        /// Subscribers to wait for.
+        subscribers: usize,
+    },
+}
+
+/// How long a lockstep source waits for its subscribers.
+const LOCKSTEP_WAIT: Duration = Duration::from_secs(30);
+
+/// Real footage: publishes `source`'s pairs as `pace` says, until it ends.
+pub fn run_source(prefix: &str, mut source: impl StereoSource, pace: Pace) -> Result<()> {
     let (w, h) = source.size();
-    let bus = Bus::new(prefix, "camera_proc")?;
+    let mut bus = Bus::new(prefix, "camera_proc")?;
+    if let Pace::Lockstep { .. } = pace {
+        bus = bus.lossless();
+    }
     let frames = bus.frame_publisher::<topics::Frames>(2 * (w * h) as usize)?;
+    if let Pace::Lockstep { subscribers } = pace {
+        bus.wait_for_subscribers(topics::TopicId::Frames, subscribers, LOCKSTEP_WAIT, &|| {
+            false
+        })?;
+        tracing::info!(
+            subscribers,
+            "lockstep: publishing as fast as the subscribers take frames"
+        );
+    }
     let mut stats = messages::stats::StageStats::new("camera_proc");
     let mut seq = 0u64;
-    let tick = fps
-        .map(|f| Duration::from_secs_f64(1.0 / f))
-        .unwrap_or(Duration::from_millis(1));
+    let tick = match pace {
+        Pace::Rate(f) => Duration::from_secs_f64(1.0 / f),
+        Pace::AsDelivered => Duration::from_millis(1),
+        // Publishing waits for room; the tick only keeps the loop turning.
+        Pace::Lockstep { .. } => Duration::from_micros(50),
+    };
     bus.wake()?.run(&[], Some(tick), || -> Result<_> {
         let cpu = messages::stats::StepStart::now();
         let more = frames.publish(header(seq, w, h), |left, right| {

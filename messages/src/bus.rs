@@ -254,6 +254,38 @@ impl Bus {
         topic.visit(Count(self))
     }
 
+    /// Waits until `topic` has at least `count` subscribers, polling every
+    /// 5 ms; fails after `timeout` or when `stop` says so.
+    pub fn wait_for_subscribers(
+        &self,
+        topic: TopicId,
+        count: usize,
+        timeout: Duration,
+        stop: &dyn Fn() -> bool,
+    ) -> Result<(), BusError> {
+        let began = std::time::Instant::now();
+        loop {
+            let now = self.subscriber_count(topic)?;
+            if now >= count {
+                return Ok(());
+            }
+            if stop() {
+                return Err(BusError::new(format!(
+                    "interrupted while waiting for subscribers of `{}`",
+                    topic.name()
+                )));
+            }
+            if began.elapsed() > timeout {
+                return Err(BusError::new(format!(
+                    "topic `{}` has {now} subscribers after {:.0} s, waiting for {count}",
+                    topic.name(),
+                    timeout.as_secs_f64()
+                )));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
     /// Whether `topic`'s data and event services exist (someone holds them
     /// open), without creating them.
     pub fn service_exists(&self, topic: TopicId) -> Result<bool, BusError> {

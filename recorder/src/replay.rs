@@ -218,21 +218,8 @@ pub fn replay(
     let topics = &replay_bus.topics;
     let waiting = Instant::now();
     for &t in topics {
-        while bus.subscriber_count(t)? < options.wait_subscribers {
-            if stop() {
-                anyhow::bail!("interrupted while waiting for subscribers");
-            }
-            if waiting.elapsed() > options.wait_timeout {
-                anyhow::bail!(
-                    "topic `{}` has {} subscribers after {:.0} s, waiting for {}",
-                    t.name(),
-                    bus.subscriber_count(t)?,
-                    options.wait_timeout.as_secs_f64(),
-                    options.wait_subscribers
-                );
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        let left = options.wait_timeout.saturating_sub(waiting.elapsed());
+        bus.wait_for_subscribers(t, options.wait_subscribers, left, stop)?;
     }
     let contents = recording.contents();
     let first = contents.time_range.map_or(0, |r| r.0);
