@@ -17,10 +17,6 @@ use opencv::prelude::*;
 /// Share of each edge left out at both ends (the corners' rounding and the
 /// neighbouring edge's gradient).
 const END_MARGIN: f64 = 0.15;
-/// Edges longer than this (pixels) are fitted as parabolas, and each corner
-/// is where the tangents at the edges' ends meet: lens distortion bends a
-/// long edge, and one straight line through it would miss both corners.
-const BOWED_EDGE_PX: f64 = 100.0;
 
 /// A line `normal . p = offset`, `normal` of unit length.
 #[derive(Debug, Clone, Copy)]
@@ -179,39 +175,6 @@ impl Band {
             offset: normal.dot(&mean),
         })
     }
-
-    /// The edge as a parabola about `line`: offset from it as a quadratic in
-    /// the position along it (weighted least squares). Returns the tangent
-    /// lines at the edge's two ends, `a` and `b`.
-    fn bowed_ends(&self, line: Line, a: Vector2<f64>, b: Vector2<f64>) -> Option<(Line, Line)> {
-        let along = Vector2::new(-line.normal.y, line.normal.x);
-        let origin = line.normal * line.offset;
-        let u_of = |p: &Vector2<f64>| (p - origin).dot(&along);
-        let (ua, ub) = (u_of(&a), u_of(&b));
-        let scale = (ub - ua).abs().max(1.0);
-        let mid = 0.5 * (ua + ub);
-        let mut ata = nalgebra::Matrix3::<f64>::zeros();
-        let mut atb = nalgebra::Vector3::<f64>::zeros();
-        for (p, w) in &self.points {
-            let u = (u_of(p) - mid) / scale;
-            let row = nalgebra::Vector3::new(1.0, u, u * u);
-            ata += *w * row * row.transpose();
-            atb += *w * row * (line.normal.dot(p) - line.offset);
-        }
-        let c = ata.try_inverse()? * atb;
-        let tangent_at = |u_abs: f64| {
-            let u = (u_abs - mid) / scale;
-            let offset = c[0] + c[1] * u + c[2] * u * u;
-            let slope = (c[1] + 2.0 * c[2] * u) / scale;
-            let point = origin + u_abs * along + offset * line.normal;
-            let normal = (line.normal - slope * along).normalize();
-            Line {
-                normal,
-                offset: normal.dot(&point),
-            }
-        };
-        Some((tangent_at(ua), tangent_at(ub)))
-    }
 }
 
 /// The corners of a marker located from its four edges; `None` when an edge
@@ -228,7 +191,6 @@ pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Opt
     let shortest = (0..4)
         .map(|k| (c[(k + 1) % 4] - c[k]).norm())
         .fold(f64::INFINITY, f64::min);
-    // Per edge: the line for its first corner and the line for its second.
     let mut lines = Vec::with_capacity(4);
     for k in 0..4 {
         let (a, b) = (c[k], c[(k + 1) % 4]);
@@ -245,20 +207,13 @@ pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Opt
         // narrow one about the first fit.
         let wide = (0.12 * shortest).clamp(1.5, 4.0);
         let first = Band::collect(&grey, (a, b), outward, start, wide)?.line(outward)?;
-        if (b - a).norm() > BOWED_EDGE_PX {
-            let band = Band::collect(&grey, (a, b), outward, first, wide)?;
-            let line = band.line(outward)?;
-            lines.push(band.bowed_ends(line, a, b)?);
-        } else {
-            let narrow = (0.5 * wide).max(1.2);
-            let line = Band::collect(&grey, (a, b), outward, first, narrow)?.line(outward)?;
-            lines.push((line, line));
-        }
+        let narrow = (0.5 * wide).max(1.2);
+        lines.push(Band::collect(&grey, (a, b), outward, first, narrow)?.line(outward)?);
     }
     let mut out = [Point2f::default(); 4];
     for k in 0..4 {
         // Corner k ends edge k - 1 and starts edge k.
-        let p = lines[(k + 3) % 4].1.intersect(&lines[k].0)?;
+        let p = lines[(k + 3) % 4].intersect(&lines[k])?;
         if (p - c[k]).norm() > 0.2 * shortest {
             return None;
         }
