@@ -205,18 +205,7 @@ impl Detector {
     }
 
     fn quads<M: MatTraitConst + core::ToInputArray>(&self, grey: &M) -> Result<Vec<[Point2f; 4]>> {
-        let mut corners = Vector::<Vector<Point2f>>::new();
-        let mut ids = Vector::<i32>::new();
-        let mut rejected = Vector::<Vector<Point2f>>::new();
-        aruco::detect_markers(
-            grey,
-            &self.dictionary,
-            &mut corners,
-            &mut ids,
-            &self.params,
-            &mut rejected,
-        )
-        .context("ArUco detection")?;
+        let (corners, _, rejected) = opencv_pass(grey, &self.dictionary, &self.params)?;
         Ok(corners
             .iter()
             .chain(rejected.iter())
@@ -297,6 +286,34 @@ impl Detector {
     }
 }
 
+/// Quads of one OpenCV `detectMarkers` pass: the markers it read (corners,
+/// ids) and the candidates it refused.
+type OpenCvPass = (
+    Vector<Vector<Point2f>>,
+    Vector<i32>,
+    Vector<Vector<Point2f>>,
+);
+
+fn opencv_pass(
+    image: &impl core::ToInputArray,
+    dictionary: &Ptr<aruco::Dictionary>,
+    params: &Ptr<aruco::DetectorParameters>,
+) -> Result<OpenCvPass> {
+    let mut corners = Vector::<Vector<Point2f>>::new();
+    let mut ids = Vector::<i32>::new();
+    let mut rejected = Vector::<Vector<Point2f>>::new();
+    aruco::detect_markers(
+        image,
+        dictionary,
+        &mut corners,
+        &mut ids,
+        params,
+        &mut rejected,
+    )
+    .context("ArUco detection")?;
+    Ok((corners, ids, rejected))
+}
+
 /// Markers up to this side (pixels) get corners from edge lines; larger
 /// ones from `cornerSubPix`, whose 5 px window then stays well inside the
 /// white margin and the border. Measured on rendered frames, edge lines put
@@ -333,18 +350,7 @@ impl StockPass {
 
     /// Ids and corners of the markers found.
     pub fn detect(&self, image: &impl core::ToInputArray) -> Result<Vec<(u32, [Point2f; 4])>> {
-        let mut corners = Vector::<Vector<Point2f>>::new();
-        let mut ids = Vector::<i32>::new();
-        let mut rejected = Vector::<Vector<Point2f>>::new();
-        aruco::detect_markers(
-            image,
-            &self.dictionary,
-            &mut corners,
-            &mut ids,
-            &self.params,
-            &mut rejected,
-        )
-        .context("ArUco detection")?;
+        let (corners, ids, _) = opencv_pass(image, &self.dictionary, &self.params)?;
         Ok(ids
             .iter()
             .zip(corners.iter())
