@@ -177,12 +177,9 @@ def to_variant(points, width, mirrored, half):
 
 
 def box_to_variant(box, width, mirrored, half):
-    x0, y0, x1, y1 = box
-    if mirrored:
-        x0, x1 = width - 1 - x1, width - 1 - x0
-    if half:
-        x0, y0, x1, y1 = ((v + 0.5) / 2 - 0.5 for v in (x0, y0, x1, y1))
-    return [x0, y0, x1, y1]
+    corners = to_variant(np.array(box, dtype=np.float64).reshape(2, 2), width, mirrored, half)
+    (x0, x1), (y0, y1) = sorted(corners[:, 0]), sorted(corners[:, 1])
+    return [float(x0), float(y0), float(x1), float(y1)]
 
 
 def make_variant(gray, mirrored, blur, dim, half, jpeg):

@@ -21,7 +21,7 @@ const SIDE: i32 = 640;
 
 /// Writes a side-by-side MJPG video of `frames` stereo pairs: left the
 /// photograph k, right the mirror image of photograph k + 1.
-fn write_video(path: &Path, frames: usize) -> usize {
+fn write_video(path: &Path, frames: usize) {
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/real_markers/eurobot");
     let mut photos: Vec<_> = std::fs::read_dir(&data)
         .unwrap()
@@ -51,7 +51,6 @@ fn write_video(path: &Path, frames: usize) -> usize {
         writer.write(&pair).unwrap();
     }
     writer.release().unwrap();
-    photos.len()
 }
 
 /// Each frame's detections as (id, mirrored, centre), sorted.

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use opencv::core::Mat;
 use opencv::imgcodecs;
-use tracker_proc::real_set::{Found, RealSet, Report, stock_pass, table};
+use tracker_proc::real_set::{Found, RealSet, Report, readings_near, stock_pass, table};
 use tracker_proc::{Checks, Correction, Detector, Options, Refine, StockPass};
 
 fn main() -> Result<()> {
@@ -183,19 +183,7 @@ fn main() -> Result<()> {
             for (what, list) in lists {
                 for (file, id, [x, y]) in list {
                     let image = imgcodecs::imread(set.dir.join(file), imgcodecs::IMREAD_GRAYSCALE)?;
-                    let readings: Vec<String> = detector
-                        .candidates(&image)?
-                        .into_iter()
-                        .filter(|(q, _)| {
-                            let cx = q.iter().map(|p| f64::from(p.x)).sum::<f64>() / 4.0;
-                            let cy = q.iter().map(|p| f64::from(p.y)).sum::<f64>() / 4.0;
-                            (cx - x).hypot(cy - y) < 4.0
-                        })
-                        .map(|(_, r)| match r {
-                            Ok(d) => format!("read id {} ({} bits corrected)", d.id, d.errors),
-                            Err(refusal) => format!("{refusal:?}"),
-                        })
-                        .collect();
+                    let readings = readings_near(&mut detector, &image, [*x, *y])?;
                     why.push(format!(
                         "  {what} id {id} at ({x:.1}, {y:.1}) in {file}: {}",
                         readings.join("; ")

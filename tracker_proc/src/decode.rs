@@ -87,8 +87,24 @@ pub struct Decoded {
     pub gap: f64,
     /// Black-to-white contrast, grey levels.
     pub contrast: f64,
-    /// The border's grey level.
-    pub black: f64,
+}
+
+/// Length of a quadrilateral's shortest side, pixels.
+pub fn shortest_side(q: &[Point2f; 4]) -> f32 {
+    (0..4)
+        .map(|k| {
+            let (a, b) = (q[k], q[(k + 1) % 4]);
+            (a.x - b.x).hypot(a.y - b.y)
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// Mean of a quadrilateral's corners.
+pub fn quad_center(q: &[Point2f; 4]) -> (f32, f32) {
+    let s = q
+        .iter()
+        .fold((0.0f32, 0.0f32), |a, p| (a.0 + p.x, a.1 + p.y));
+    (s.0 / 4.0, s.1 / 4.0)
 }
 
 /// What reading a candidate gave: a marker, or why not.
@@ -372,29 +388,14 @@ impl CodeBook {
     }
 
     /// Reads the candidate with corners `quad` (OpenCV's candidate order) in
-    /// the grey `image`, or `None` when it is no marker of the book.
-    pub fn decode(
-        &self,
-        image: &impl core::ToInputArray,
-        quad: &[Point2f; 4],
-        checks: &Checks,
-    ) -> Result<Option<Decoded>> {
-        Ok(self.read(image, quad, checks)?.ok())
-    }
-
-    /// As [`CodeBook::decode`], saying why a candidate is refused.
+    /// the grey `image`: the marker, or why it is none of the book's.
     pub fn read(
         &self,
         image: &impl core::ToInputArray,
         quad: &[Point2f; 4],
         checks: &Checks,
     ) -> Result<Reading> {
-        let shortest = (0..4)
-            .map(|k| {
-                let (a, b) = (quad[k], quad[(k + 1) % 4]);
-                f64::from((a.x - b.x).hypot(a.y - b.y))
-            })
-            .fold(f64::INFINITY, f64::min);
+        let shortest = f64::from(shortest_side(quad));
         if shortest < checks.min_side {
             return Ok(Err(Refusal::Small(shortest)));
         }
@@ -443,7 +444,6 @@ impl CodeBook {
                 margin,
                 gap,
                 contrast,
-                black,
             }))
     }
 }

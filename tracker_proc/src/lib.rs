@@ -24,7 +24,9 @@ pub mod real_set;
 pub mod refine;
 pub mod step;
 
-pub use decode::{Checks, CodeBook, Correction, Decoded, Reading, Refusal};
+pub use decode::{
+    Checks, CodeBook, Correction, Decoded, Reading, Refusal, quad_center, shortest_side,
+};
 pub use step::{Tracked, Tracker};
 
 use anyhow::{Context, Result};
@@ -172,36 +174,39 @@ impl Detector {
             )
     }
 
-    /// Reads one candidate; a refused one is read again on corners fitted to
-    /// its edges when that lever is on (whole-pixel polygon corners put the
-    /// cells of a small or steeply seen marker off by a fraction of a cell).
+    /// Reads one candidate; a near miss is read again on fitted corners
+    /// ([`Detector::reread`]).
     fn read<M: MatTraitConst + core::ToInputArray>(
         &self,
         grey: &M,
         quad: [Point2f; 4],
     ) -> Result<([Point2f; 4], Reading)> {
         let first = self.book.read(grey, &quad, &self.options.checks)?;
-        // Worth a second look: a near miss, not a patch without contrast or a
-        // pattern on dark ground.
-        let near_miss = matches!(
-            first,
-            Err(Refusal::Border(..4)
-                | Refusal::Margin(_)
-                | Refusal::NoCode(..4)
-                | Refusal::Ambiguous(_))
-        );
-        if !near_miss || !self.options.reread_refined {
-            return Ok((quad, first));
+        if let Err(refusal) = &first
+            && self.worth_rereading(refusal)
+            && let Some((fitted, d)) = self.reread(grey, &quad)?
+        {
+            return Ok((fitted, Ok(d)));
         }
-        let Some(fitted) = refine::refine_corners(grey, &quad) else {
-            return Ok((quad, first));
+        Ok((quad, first))
+    }
+
+    /// Reads a candidate again on corners fitted to its edges (whole-pixel
+    /// polygon corners put the cells of a small or steeply seen marker off
+    /// by a fraction of a cell).
+    fn reread<M: MatTraitConst + core::ToInputArray>(
+        &self,
+        grey: &M,
+        quad: &[Point2f; 4],
+    ) -> Result<Option<([Point2f; 4], Decoded)>> {
+        let Some(fitted) = refine::refine_corners(grey, quad) else {
+            return Ok(None);
         };
-        let second = self.book.read(grey, &fitted, &self.options.checks)?;
-        Ok(if second.is_ok() {
-            (fitted, second)
-        } else {
-            (quad, first)
-        })
+        Ok(self
+            .book
+            .read(grey, &fitted, &self.options.checks)?
+            .ok()
+            .map(|d| (fitted, d)))
     }
 
     fn quads<M: MatTraitConst + core::ToInputArray>(&self, grey: &M) -> Result<Vec<[Point2f; 4]>> {
@@ -234,10 +239,8 @@ impl Detector {
             if found.iter().any(|(q, _)| overlapping(q, &quad)) {
                 continue;
             }
-            if let Some(fitted) = refine::refine_corners(grey, &quad)
-                && let Ok(d) = self.book.read(grey, &fitted, &self.options.checks)?
-            {
-                found.push((fitted, d));
+            if let Some(read) = self.reread(grey, &quad)? {
+                found.push(read);
             }
         }
         let found: Vec<([Point2f; 4], Decoded)> = best_of_overlapping(found)
@@ -320,15 +323,6 @@ fn opencv_pass(
 /// the centres of 150 to 200 px markers off by up to 2.5 px.
 const LINES_UP_TO_PX: f32 = 100.0;
 
-fn shortest_side(q: &[Point2f; 4]) -> f32 {
-    (0..4)
-        .map(|k| {
-            let (a, b) = (q[k], q[(k + 1) % 4]);
-            (a.x - b.x).hypot(a.y - b.y)
-        })
-        .fold(f32::INFINITY, f32::min)
-}
-
 /// OpenCV's stock pass, the baseline the benchmarks and the real-image set
 /// compare against: `detectMarkers` with `DICT_4X4_50` and default
 /// parameters (no corner refinement); printed markers only.
@@ -380,22 +374,8 @@ fn best_of_overlapping(mut found: Vec<([Point2f; 4], Decoded)>) -> Vec<([Point2f
 /// Whether two quadrilaterals are outlines of one marker: centres closer
 /// than half the longer of their shortest sides.
 fn overlapping(a: &[Point2f; 4], b: &[Point2f; 4]) -> bool {
-    let center = |q: &[Point2f; 4]| {
-        let s = q
-            .iter()
-            .fold((0.0f32, 0.0f32), |a, p| (a.0 + p.x, a.1 + p.y));
-        (s.0 / 4.0, s.1 / 4.0)
-    };
-    let side = |q: &[Point2f; 4]| {
-        (0..4)
-            .map(|k| {
-                let (a, b) = (q[k], q[(k + 1) % 4]);
-                (a.x - b.x).hypot(a.y - b.y)
-            })
-            .fold(f32::INFINITY, f32::min)
-    };
-    let ((ax, ay), (bx, by)) = (center(a), center(b));
-    (ax - bx).hypot(ay - by) < 0.5 * side(a).max(side(b))
+    let ((ax, ay), (bx, by)) = (quad_center(a), quad_center(b));
+    (ax - bx).hypot(ay - by) < 0.5 * shortest_side(a).max(shortest_side(b))
 }
 
 /// OpenCV's corner refinement with its default window.

@@ -15,7 +15,7 @@ use messages::Marker;
 use opencv::core;
 use serde::Deserialize;
 
-use crate::{StockPass, diagonal_intersection};
+use crate::{Detector, StockPass, diagonal_intersection, quad_center, shortest_side};
 
 /// Ids of `DICT_4X4_50` whose mirror image is a rotation of the code itself:
 /// in an image, a mirrored one cannot be told from a printed one.
@@ -301,6 +301,30 @@ pub fn stock_pass(stock: &StockPass, image: &core::Mat, mirrored: bool) -> Resul
         }
     }
     Ok(out)
+}
+
+/// How the detector's candidates centred within 4 px of `center` read, in
+/// words: why a marker was missed, or what a false report was read from.
+pub fn readings_near(
+    detector: &mut Detector,
+    image: &core::Mat,
+    center: [f64; 2],
+) -> Result<Vec<String>> {
+    Ok(detector
+        .candidates(image)?
+        .into_iter()
+        .filter(|(q, _)| {
+            let (x, y) = quad_center(q);
+            (f64::from(x) - center[0]).hypot(f64::from(y) - center[1]) < 4.0
+        })
+        .map(|(q, reading)| {
+            let what = match reading {
+                Ok(d) => format!("read id {} ({} bits corrected)", d.id, d.errors),
+                Err(refusal) => format!("{refusal:?}"),
+            };
+            format!("{what}, side {:.1}", shortest_side(&q))
+        })
+        .collect())
 }
 
 /// A plain-text table of detectors side by side: per variant and over all

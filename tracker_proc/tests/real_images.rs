@@ -12,7 +12,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use opencv::imgcodecs;
-use tracker_proc::real_set::{Found, MIRROR_SYMMETRIC_IDS, RealSet, Report, stock_pass, table};
+use tracker_proc::real_set::{
+    Found, MIRROR_SYMMETRIC_IDS, RealSet, Report, readings_near, stock_pass, table,
+};
 use tracker_proc::{Detector, StockPass};
 
 fn workspace() -> PathBuf {
@@ -82,24 +84,7 @@ fn finds_what_opencv5_finds_and_more_with_a_quarter_of_its_centre_error() {
             imgcodecs::IMREAD_GRAYSCALE,
         )
         .unwrap();
-        let near: Vec<String> = detector
-            .candidates(&image)
-            .unwrap()
-            .into_iter()
-            .filter(|(q, _)| {
-                let c = q.iter().fold((0.0, 0.0), |a, p| {
-                    (a.0 + f64::from(p.x) / 4.0, a.1 + f64::from(p.y) / 4.0)
-                });
-                (c.0 - x).hypot(c.1 - y) < 4.0
-            })
-            .map(|(q, r)| {
-                format!(
-                    "{:?} side {:.0}",
-                    r,
-                    (q[0].x - q[1].x).hypot(q[0].y - q[1].y)
-                )
-            })
-            .collect();
+        let near = readings_near(&mut detector, &image, [*x, *y]).unwrap();
         println!("missed: id {id} at ({x:.1}, {y:.1}) in {file}: {near:?}");
     }
     for (file, id, [x, y]) in &ours.all.false_markers {
