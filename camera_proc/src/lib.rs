@@ -1,5 +1,6 @@
 //! The camera stage: a renderer of what the simulated head sees
-//! ([`render`]), readers of real footage ([`source`]), the frame schedule
+//! ([`render`], the still scene in [`room`], the camera in [`sensor`], its
+//! settings a [`look::Look`]), readers of real footage ([`source`]), the frame schedule
 //! ([`clock`]) and the loops that publish frames ([`stage`]).
 //!
 //! ```no_run
@@ -13,7 +14,10 @@
 //! ```
 
 pub mod clock;
+pub mod look;
 pub mod render;
+pub mod room;
+pub mod sensor;
 pub mod snapshot;
 pub mod source;
 pub mod stage;

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use camera_proc::look::LookName;
 use camera_proc::source::{Captures, ImagePairs};
 use camera_proc::stage::{self, Pace};
 use clap::{Parser, Subcommand};
@@ -33,6 +34,14 @@ enum Source {
         /// Frames to keep rendering after the pose plan is done.
         #[arg(long, default_value_t = 5)]
         tail_frames: u32,
+        /// What the images look like: a room and a real camera's blur and
+        /// noise, or cards on a flat grey field.
+        #[arg(long, value_enum, default_value_t = LookName::Realistic)]
+        look: LookName,
+        /// Compress each image with JPEG at this quality (1-100), as a USB
+        /// camera's MJPEG stream does.
+        #[arg(long, value_name = "QUALITY", value_parser = clap::value_parser!(u8).range(1..=100))]
+        mjpeg: Option<u8>,
     },
     /// Play a directory of image pairs (`*left*` / `*right*`).
     Files {
@@ -82,6 +91,9 @@ enum Source {
         /// Turn the arm's card to the head (a direct view) instead of the mirror.
         #[arg(long)]
         direct: bool,
+        /// What the images look like.
+        #[arg(long, value_enum, default_value_t = LookName::Realistic)]
+        look: LookName,
         /// Output prefix: writes PREFIX_left.png and PREFIX_right.png.
         #[arg(long)]
         out: PathBuf,
@@ -95,7 +107,15 @@ fn main() -> ExitCode {
             mirror,
             fps,
             tail_frames,
-        } => stage::run_sim(&prefix, mirror, fps, tail_frames),
+            look,
+            mjpeg,
+        } => {
+            let look = camera_proc::look::Look {
+                jpeg_quality: mjpeg,
+                ..look.look()
+            };
+            stage::run_sim(&prefix, mirror, fps, tail_frames, look)
+        }
         Source::Files {
             prefix,
             dir,
@@ -143,11 +163,13 @@ fn main() -> ExitCode {
             mirror,
             q,
             direct,
+            look,
             out,
         } => camera_proc::snapshot::snapshot(
             mirror,
             &q,
             if direct { Facing::Head } else { Facing::Mirror },
+            look,
             &out,
         ),
     })

@@ -1,28 +1,51 @@
 //! Rendering what the simulated head sees, with real ArUco marker images.
 //!
-//! The arm's marker is a square card (60 mm of black-bordered code inside a
-//! 15 mm white margin) centred on the end-effector as placed by the arm's
-//! *true* kinematics (encoder reading plus the simulator's true offsets). We
-//! model the wrist as keeping the card facing the head's mirror image (so
-//! it reads in the mirror), or the head itself for direct views. Per camera:
-//! OpenCV warps each marker texture onto an ideal (undistorted) image, at
-//! its reflected corners for a mirror view (which is what mirror-reverses
-//! it) and only where the ray passes through the mirror's finite glass; then
-//! `remap` applies the lens distortion straight into the output buffer,
-//! followed by a Gaussian blur and sensor noise.
+//! What stays still is traced once per camera ([`crate::room`]): the room,
+//! the mirror's glass and frame, the robot's head and body; blurred by the
+//! lens and darkened towards the corners, it is each frame's starting
+//! image. What moves is drawn over it each frame, only in the regions it
+//! covers: the marker cards (60 mm of black-bordered code inside a 15 mm
+//! white margin; the arm's is centred on the end-effector as placed by the
+//! arm's *true* kinematics), their plain backs, and the arm's links. A card
+//! seen in the mirror is drawn at its reflected corners (which is what
+//! mirror-reverses it), only where the pixel's ray meets the glass, dimmed
+//! by the mirror's reflectance and doubled by a faint ghost from the
+//! glass's front surface. The wrist keeps the arm's card facing the head's
+//! mirror image (so it reads in the mirror), or the head itself for direct
+//! views.
+//!
+//! Each card is sampled straight through the lens model: every pixel's
+//! undistorted ray, precomputed, goes through the card's homography into its
+//! texture. A moving arm is drawn at several poses over the exposure and
+//! averaged (motion blur); each region is blurred by the defocus at its
+//! depth; sensor noise and optional JPEG compression follow
+//! ([`crate::sensor`]). What the image looks like is a [`Look`].
+
+use std::collections::HashMap;
 
 use anyhow::{Context, Result, bail};
 use geometry::Camera;
-use geometry::sim::{Facing, ImageNoise, MARKER_MARGIN_MM, MARKER_SIZE_MM, SeenCard, SimWorld};
-use nalgebra::{Vector2, Vector3};
-use opencv::core::{self, Mat, Point2f, Scalar, Size, Vector};
+use geometry::sim::{Facing, MARKER_MARGIN_MM, MARKER_SIZE_MM, SimWorld, card_corners};
+use nalgebra::{Matrix3, Vector2, Vector3};
+use opencv::core::{self, Mat, Point, Point2f, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{aruco, imgproc};
 
+use crate::look::Look;
+use crate::room::{Picture, Room, irradiance};
+use crate::sensor::{Noise, vignetting};
+
 /// Texture pixels per marker module side.
 const TEXTURE_MARKER_PX: i32 = 120;
-/// Grey level of the background.
-const BACKGROUND: f64 = 110.0;
+/// Radii of the arm's links from the shoulder out, mm (the last repeats).
+const LIMB_RADII_MM: [f64; 2] = [24.0, 19.0];
+/// Reflectance of the arm's links and of the cards' backs.
+const LIMB_ALBEDO: f64 = 0.55;
+const CARD_BACK_ALBEDO: f64 = 0.25;
+/// Typical distance of the room seen around the arm, for its defocus, mm.
+const ROOM_DEPTH_MM: f64 = 2000.0;
+/// Most poses a moving arm is drawn at over one exposure.
+const MAX_MOTION_STEPS: usize = 6;
 
 /// A marker as drawn: id, mirror-reversed, and its code square's corners
 /// (distorted px, TL, TR, BR, BL as printed).
@@ -37,23 +60,113 @@ pub struct RenderTruth {
     pub end_effector: Option<Vector3<f64>>,
 }
 
+/// What one camera sees of the still scene, per pixel.
+struct View {
+    /// Undistorted normalised coordinates of the pixel's centre (NaN: none).
+    rays: Vec<[f32; 2]>,
+    /// The still scene (with the fixed cards) in DN, blurred, vignetted,
+    /// with flare: each frame starts from it.
+    image: Vec<u8>,
+    /// Vignetting.
+    gain: Vec<f32>,
+    /// Fraction of the pixel that shows the glass.
+    glass: Vec<f32>,
+}
+
+/// Something drawn each frame.
+#[derive(Debug, Clone, Copy)]
+enum Shape {
+    /// A marker card (code and margin), corners as seen, TL, TR, BR, BL as printed.
+    Card { id: u32, corners: [Vector3<f64>; 4] },
+    /// A card's plain back.
+    Plate { corners: [Vector3<f64>; 4] },
+    /// A link of the arm: a cylinder (a ball when the ends meet).
+    Limb {
+        a: Vector3<f64>,
+        b: Vector3<f64>,
+        radius: f64,
+    },
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Item {
+    shape: Shape,
+    /// Seen in the glass: drawn only where the pixel's ray meets it.
+    mirrored: bool,
+    /// The glass's faint front-surface image: adds light, covers nothing.
+    ghost: bool,
+    /// DN of reflectance 1 on it (light, exposure, mirror).
+    dn: f64,
+}
+
+impl Shape {
+    fn points(&self) -> Vec<Vector3<f64>> {
+        match self {
+            Shape::Card { corners, .. } | Shape::Plate { corners } => corners.to_vec(),
+            Shape::Limb { a, b, .. } => vec![*a, *b],
+        }
+    }
+
+    fn center(&self) -> Vector3<f64> {
+        let p = self.points();
+        p.iter().sum::<Vector3<f64>>() / p.len() as f64
+    }
+
+    fn map(&self, f: impl Fn(&Vector3<f64>) -> Vector3<f64>) -> Shape {
+        match *self {
+            Shape::Card { id, corners } => Shape::Card {
+                id,
+                corners: corners.map(|c| f(&c)),
+            },
+            Shape::Plate { corners } => Shape::Plate {
+                corners: corners.map(|c| f(&c)),
+            },
+            Shape::Limb { a, b, radius } => Shape::Limb {
+                a: f(&a),
+                b: f(&b),
+                radius,
+            },
+        }
+    }
+}
+
 /// Renders stereo frames of a [`SimWorld`].
 pub struct Renderer {
     world: SimWorld,
-    textures: Vec<(u32, Mat)>,
-    /// Per camera: for each distorted pixel, the ideal pixel to sample.
-    maps: [(Mat, Mat); 2],
-    canvas: Mat,
+    look: Look,
+    /// Full-size card images (code and margin) per id, 8 bits.
+    cards: HashMap<u32, Mat>,
+    /// Cards shrunk to about their size on screen, per (id, side).
+    shrunk: HashMap<(u32, i32), Picture>,
+    views: [View; 2],
+    noise: Noise,
+}
+
+/// A rectangle of the image.
+#[derive(Debug, Clone)]
+struct Region {
+    x0: usize,
+    y0: usize,
+    w: usize,
+    h: usize,
+    /// Nearest depth of what it shows, mm: its defocus.
+    depth: f64,
 }
 
 impl Renderer {
-    /// Prepares textures and distortion maps.
+    /// A renderer with the default ([`Look::realistic`]) look.
     pub fn new(world: SimWorld) -> Result<Self> {
+        Self::with_look(world, Look::realistic())
+    }
+
+    /// Prepares card textures and traces the still scene for each camera.
+    pub fn with_look(world: SimWorld, look: Look) -> Result<Self> {
+        look.validate().map_err(anyhow::Error::msg)?;
         let dictionary =
             aruco::get_predefined_dictionary(aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50)?;
         let margin_px =
             (f64::from(TEXTURE_MARKER_PX) * MARKER_MARGIN_MM / MARKER_SIZE_MM).round() as i32;
-        let mut textures = Vec::new();
+        let mut cards = HashMap::new();
         for id in std::iter::once(world.arm_marker).chain(world.fixed.iter().map(|f| f.id)) {
             if id >= 50 {
                 bail!("marker id {id} is not in DICT_4X4_50");
@@ -71,30 +184,41 @@ impl Renderer {
                 core::BORDER_CONSTANT,
                 Scalar::all(255.0),
             )?;
-            textures.push((id, texture));
+            cards.insert(id, texture);
         }
-        let maps = [
-            distortion_maps(&world.rig.cameras[0])?,
-            distortion_maps(&world.rig.cameras[1])?,
+        let eyes = [world.rig.cameras[0].center, world.rig.cameras[1].center];
+        let room = Room::new(world.mirror, eyes, &look)?;
+        let views = [
+            still_view(&world.rig.cameras[0], &room, &look)?,
+            still_view(&world.rig.cameras[1], &room, &look)?,
         ];
-        let k = world.rig.cameras[0].intrinsics;
-        let canvas = Mat::new_rows_cols_with_default(
-            k.height as i32,
-            k.width as i32,
-            core::CV_8UC1,
-            Scalar::all(BACKGROUND),
-        )?;
-        Ok(Self {
+        let pixels = views[0].image.len();
+        let mut renderer = Self {
+            noise: Noise::new(&look, pixels, 0x5EED),
             world,
-            textures,
-            maps,
-            canvas,
-        })
+            look,
+            cards,
+            shrunk: HashMap::new(),
+            views,
+        };
+        // The fixed cards do not move: drawn into the still image once.
+        let fixed = [renderer.items(None, Facing::Mirror)?];
+        for k in 0..2 {
+            let mut image = std::mem::take(&mut renderer.views[k].image);
+            renderer.draw_over(k, &fixed, &mut image)?;
+            renderer.views[k].image = image;
+        }
+        Ok(renderer)
     }
 
     /// The world being rendered.
     pub fn world(&self) -> &SimWorld {
         &self.world
+    }
+
+    /// The look it renders with.
+    pub fn look(&self) -> &Look {
+        &self.look
     }
 
     /// Renders both cameras into new buffers sized by the rig (for tests and
@@ -105,19 +229,33 @@ impl Renderer {
         arm_faces: Facing,
         seq: u64,
     ) -> Result<([Vec<u8>; 2], RenderTruth)> {
-        let i = self.world.rig.cameras[0].intrinsics;
-        let len = (i.width * i.height) as usize;
+        let len = self.views[0].image.len();
         let (mut left, mut right) = (vec![0u8; len], vec![0u8; len]);
         let truth = self.render(q, arm_faces, seq, &mut left, &mut right)?;
         Ok(([left, right], truth))
     }
 
     /// Renders both cameras for encoder readings `q` into `left` and `right`
-    /// (mono8, width x height, no row padding); `seq` seeds the sensor noise.
-    /// `arm_faces` says which way the wrist turns the arm's card.
+    /// (mono8, width x height, no row padding), the arm still; `seq` seeds
+    /// the sensor noise. `arm_faces` says which way the wrist turns the
+    /// arm's card.
     pub fn render(
         &mut self,
         q: &[f64],
+        arm_faces: Facing,
+        seq: u64,
+        left: &mut [u8],
+        right: &mut [u8],
+    ) -> Result<RenderTruth> {
+        self.render_moving(q, None, arm_faces, seq, left, right)
+    }
+
+    /// [`Renderer::render`] with the arm moving at `velocity` (rad/s per
+    /// joint): the exposure is centred on `q`, and the arm blurs over it.
+    pub fn render_moving(
+        &mut self,
+        q: &[f64],
+        velocity: Option<&[f64]>,
         arm_faces: Facing,
         seq: u64,
         left: &mut [u8],
@@ -134,199 +272,729 @@ impl Renderer {
             end_effector: Some(end_effector),
             ..RenderTruth::default()
         };
-        let mut things: Vec<(u32, Vector3<f64>)> = vec![(self.world.arm_marker, end_effector)];
-        things.extend(self.world.fixed.iter().map(|f| (f.id, f.center)));
-        // Where each card is seen (camera independent): the whole card, and its code square for the truth.
-        let side = MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM;
-        let mut cards: Vec<(u32, SeenCard, SeenCard)> = things
-            .iter()
-            .map(|&(id, center)| {
-                let faces = if id == self.world.arm_marker {
-                    arm_faces
-                } else {
-                    Facing::Mirror
-                };
-                (
-                    id,
-                    self.world.seen_card(center, faces, side),
-                    self.world.seen_card(center, faces, MARKER_SIZE_MM),
-                )
+        // The poses the arm is drawn at over the exposure.
+        let half_exposure = self.look.exposure_ms / 2000.0;
+        let (open, close): (Vec<f64>, Vec<f64>) = match velocity {
+            Some(v) if v.len() == q.len() && self.look.exposure_ms > 0.0 => q
+                .iter()
+                .zip(v)
+                .map(|(q, v)| (q - v * half_exposure, q + v * half_exposure))
+                .unzip(),
+            _ => (q.to_vec(), q.to_vec()),
+        };
+        let steps = self.motion_steps(&open, &close, arm_faces)?;
+        let poses: Vec<Vec<f64>> = (0..steps)
+            .map(|s| {
+                let f = (s as f64 + 0.5) / steps as f64;
+                open.iter()
+                    .zip(&close)
+                    .map(|(a, b)| a + (b - a) * f)
+                    .collect()
             })
             .collect();
+        let mut items_per_pose = Vec::with_capacity(steps);
+        for pose in &poses {
+            items_per_pose.push(self.items(Some(pose), arm_faces)?);
+        }
+        let code_side = MARKER_SIZE_MM;
         for (k, out) in [left, right].into_iter().enumerate() {
             let cam = self.world.rig.cameras[k];
-            self.canvas
-                .set_to(&Scalar::all(BACKGROUND), &core::no_array())?;
-            // Painter's order: what the camera sees farthest (a reflection is as
-            // far as its virtual position) is drawn first.
-            cards.sort_by(|a, b| cam.depth(&b.1.center).total_cmp(&cam.depth(&a.1.center)));
-            for (id, card, code) in &cards {
-                let texture = &self
-                    .textures
-                    .iter()
-                    .find(|t| t.0 == *id)
-                    .expect("texture per id")
-                    .1;
-                let behind_glass = !card.mirrored
+            // Truth: cards whose code the camera sees whole (through the glass if reflected).
+            for (id, center, faces) in self.cards_at(&end_effector, arm_faces) {
+                let code = self.world.seen_card(center, faces, code_side);
+                let behind_glass = !code.mirrored
                     || self.world.mirror.is_some_and(|m| {
-                        card.corners
+                        code.corners
                             .iter()
                             .all(|c| m.ray_hits_glass(&cam.center, c))
                     });
-                if behind_glass && warp_card(&mut self.canvas, texture, &cam, &card.corners)? {
-                    let mut px = [Vector2::zeros(); 4];
-                    for (p, c) in px.iter_mut().zip(&code.corners) {
-                        *p = cam.project(c)?;
-                    }
-                    truth.markers[k].push((*id, card.mirrored, px));
+                if !behind_glass || code.corners.iter().any(|c| cam.depth(c) <= 1.0) {
+                    continue;
+                }
+                let mut px = [Vector2::zeros(); 4];
+                for (p, c) in px.iter_mut().zip(&code.corners) {
+                    *p = cam.project(c)?;
+                }
+                if px.iter().any(|p| cam.intrinsics.contains(p, 0.0)) {
+                    truth.markers[k].push((id, code.mirrored, px));
                 }
             }
-            let intr = cam.intrinsics;
-            let mut dst =
-                Mat::new_rows_cols_with_data_mut(intr.height as i32, intr.width as i32, out)?;
-            imgproc::remap(
-                &self.canvas,
-                &mut dst,
-                &self.maps[k].0,
-                &self.maps[k].1,
-                imgproc::INTER_LINEAR,
-                core::BORDER_REPLICATE,
-                Scalar::default(),
-            )?;
-            degrade(
-                &mut dst,
-                self.world.noise,
-                seq.wrapping_mul(2).wrapping_add(k as u64),
-            )?;
+            self.draw_view(k, &items_per_pose, out)?;
+            let width = cam.intrinsics.width as usize;
+            self.noise
+                .apply(out, width, seq.wrapping_mul(2).wrapping_add(k as u64))?;
         }
         Ok(truth)
     }
+
+    /// The cards in the world: (id, centre, which way it faces).
+    fn cards_at(
+        &self,
+        end_effector: &Vector3<f64>,
+        arm_faces: Facing,
+    ) -> Vec<(u32, Vector3<f64>, Facing)> {
+        std::iter::once((self.world.arm_marker, *end_effector, arm_faces))
+            .chain(
+                self.world
+                    .fixed
+                    .iter()
+                    .map(|f| (f.id, f.center, Facing::Mirror)),
+            )
+            .collect()
+    }
+
+    /// How many poses to draw the arm at: about one per 1.5 px its card
+    /// moves in either image over the exposure.
+    fn motion_steps(&self, open: &[f64], close: &[f64], faces: Facing) -> Result<usize> {
+        if open == close {
+            return Ok(1);
+        }
+        let arm = self.world.rig.arm.as_ref().context("no arm")?;
+        let a = self.world.seen_card(
+            arm.end_effector(open, &self.world.true_offsets)?,
+            faces,
+            1.0,
+        );
+        let b = self.world.seen_card(
+            arm.end_effector(close, &self.world.true_offsets)?,
+            faces,
+            1.0,
+        );
+        let mut moved: f64 = 0.0;
+        for cam in &self.world.rig.cameras {
+            if let (Ok(pa), Ok(pb)) = (cam.project(&a.center), cam.project(&b.center)) {
+                moved = moved.max((pa - pb).norm());
+            }
+        }
+        Ok(((moved / 1.5).ceil() as usize).clamp(1, MAX_MOTION_STEPS))
+    }
+
+    /// What is drawn for the arm at `q` (its card, the card's back, its
+    /// links), or with `q` `None` for the fixed cards; directly and in the
+    /// glass, with the glass's ghost.
+    fn items(&self, q: Option<&[f64]>, arm_faces: Facing) -> Result<Vec<Item>> {
+        let arm = self.world.rig.arm.as_ref().context("no arm")?;
+        let offsets = &self.world.true_offsets;
+        let cards = match q {
+            Some(q) => vec![(
+                self.world.arm_marker,
+                arm.end_effector(q, offsets)?,
+                arm_faces,
+            )],
+            None => self
+                .world
+                .fixed
+                .iter()
+                .map(|f| (f.id, f.center, Facing::Mirror))
+                .collect(),
+        };
+        let look = &self.look;
+        let lit = |p: &Vector3<f64>, n: &Vector3<f64>| {
+            look.exposure_dn * if look.room { irradiance(p, n) } else { 1.0 }
+        };
+        let head = 0.5 * (self.world.rig.cameras[0].center + self.world.rig.cameras[1].center);
+        let side = MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM;
+        // Real (unreflected) shapes with their reflectance-1 DN, and for a
+        // card or its back whether its face is turned to the glass.
+        let mut real: Vec<(Shape, f64, Option<bool>)> = Vec::new();
+        for (id, center, faces) in cards {
+            // Which way the card's face points: towards the head or its image.
+            let eye = match (faces, self.world.mirror) {
+                (Facing::Mirror, Some(m)) if m.plane.signed_distance(&center) > 0.0 => {
+                    Some(m.plane.reflect_point(&head))
+                }
+                _ => None,
+            };
+            let to_glass = eye.is_some();
+            let eye = eye.unwrap_or(head);
+            let front = card_corners(&center, &eye, side);
+            let normal = (eye - center).normalize();
+            real.push((
+                Shape::Card { id, corners: front },
+                lit(&center, &normal),
+                Some(to_glass),
+            ));
+            if look.room {
+                // The back: the same square seen from behind.
+                let back = [front[1], front[0], front[3], front[2]];
+                real.push((
+                    Shape::Plate { corners: back },
+                    CARD_BACK_ALBEDO * lit(&center, &-normal),
+                    Some(!to_glass),
+                ));
+            }
+        }
+        if let (true, Some(q)) = (look.room, q) {
+            let joints = arm.skeleton(q, offsets)?;
+            let mut limb = 0;
+            for pair in joints.windows(2) {
+                let (a, b) = (pair[0], pair[1]);
+                if (a - b).norm() < 1.0 {
+                    continue;
+                }
+                let radius = LIMB_RADII_MM[limb.min(LIMB_RADII_MM.len() - 1)];
+                limb += 1;
+                let n = (head - 0.5 * (a + b)).normalize();
+                let dn = LIMB_ALBEDO * lit(&(0.5 * (a + b)), &n);
+                real.push((Shape::Limb { a, b, radius }, dn, None));
+                // A ball at the joint it starts from.
+                real.push((
+                    Shape::Limb {
+                        a,
+                        b: a,
+                        radius: radius * 1.15,
+                    },
+                    dn,
+                    None,
+                ));
+            }
+        }
+        let mut items = Vec::new();
+        for (shape, dn, to_glass) in &real {
+            // A card (or its back) shows its face to the head directly or to
+            // the head's mirror image; links show to both.
+            if *to_glass != Some(true) && (matches!(shape, Shape::Card { .. }) || look.room) {
+                items.push(Item {
+                    shape: *shape,
+                    mirrored: false,
+                    ghost: false,
+                    dn: *dn,
+                });
+            }
+            let Some(m) = self.world.mirror else { continue };
+            if *to_glass == Some(false) || m.plane.signed_distance(&shape.center()) <= 0.0 {
+                continue;
+            }
+            items.push(Item {
+                shape: shape.map(|p| m.plane.reflect_point(p)),
+                mirrored: true,
+                ghost: false,
+                dn: dn * look.reflectance,
+            });
+            if look.ghost > 0.0 {
+                let n = m.plane.normal.into_inner() * look.ghost_offset_mm;
+                items.push(Item {
+                    shape: shape.map(|p| m.plane.reflect_point(p) + n),
+                    mirrored: true,
+                    ghost: true,
+                    dn: dn * look.reflectance * look.ghost,
+                });
+            }
+        }
+        Ok(items)
+    }
+
+    /// Draws one camera's frame: the still scene, then what is seen in the
+    /// glass, then what is seen directly; each of those far to near, links
+    /// and card backs before cards (a card is held at the wrist).
+    fn draw_view(&mut self, k: usize, items_per_pose: &[Vec<Item>], out: &mut [u8]) -> Result<()> {
+        out.copy_from_slice(&self.views[k].image);
+        self.draw_over(k, items_per_pose, out)
+    }
+
+    /// Draws items over what `out` shows: see [`Renderer::draw_view`].
+    fn draw_over(&mut self, k: usize, items_per_pose: &[Vec<Item>], out: &mut [u8]) -> Result<()> {
+        let cam = self.world.rig.cameras[k];
+        let middle = &items_per_pose[items_per_pose.len() / 2];
+        for mirrored in [true, false] {
+            // Links and backs: large and plain, drawn once at the exposure's middle pose.
+            let mut plain: Vec<&Item> = middle
+                .iter()
+                .filter(|i| i.mirrored == mirrored && !matches!(i.shape, Shape::Card { .. }))
+                .collect();
+            plain.sort_by(|a, b| {
+                cam.depth(&b.shape.center())
+                    .total_cmp(&cam.depth(&a.shape.center()))
+            });
+            for item in plain {
+                self.draw_plain(k, item, out)?;
+            }
+            // Cards: at every pose over the exposure, in regions around them.
+            let mut cards: Vec<(usize, &Item, [f64; 4], Region)> = Vec::new();
+            for (pose, items) in items_per_pose.iter().enumerate() {
+                for item in items.iter().filter(|i| i.mirrored == mirrored) {
+                    if let (Shape::Card { .. }, Some((bbox, area))) =
+                        (item.shape, self.area(&cam, &item.shape))
+                    {
+                        cards.push((pose, item, bbox, area));
+                    }
+                }
+            }
+            cards.sort_by(|a, b| b.3.depth.total_cmp(&a.3.depth));
+            let mut regions: Vec<Region> = Vec::new();
+            for (_, _, _, area) in &cards {
+                let mut region = area.clone();
+                while let Some(j) = regions.iter().position(|r| overlaps(r, &region)) {
+                    region = union(&region, &regions.swap_remove(j));
+                }
+                regions.push(region);
+            }
+            let poses = items_per_pose.len();
+            for region in &regions {
+                let n = region.w * region.h;
+                let (mut light, mut alpha) = (vec![0f32; n], vec![0f32; n]);
+                let inside: Vec<_> = cards.iter().filter(|c| overlaps(&c.3, region)).collect();
+                if poses == 1 {
+                    for (_, item, bbox, _) in &inside {
+                        self.draw_card(k, item, *bbox, region, &mut light, &mut alpha)?;
+                    }
+                } else {
+                    // Each pose's cards drawn alone, then the poses averaged.
+                    let (mut step_light, mut step_alpha) = (vec![0f32; n], vec![0f32; n]);
+                    for pose in 0..poses {
+                        step_light.fill(0.0);
+                        step_alpha.fill(0.0);
+                        for (_, item, bbox, _) in inside.iter().filter(|c| c.0 == pose) {
+                            self.draw_card(
+                                k,
+                                item,
+                                *bbox,
+                                region,
+                                &mut step_light,
+                                &mut step_alpha,
+                            )?;
+                        }
+                        for (acc, v) in light.iter_mut().zip(&step_light) {
+                            *acc += v / poses as f32;
+                        }
+                        for (acc, v) in alpha.iter_mut().zip(&step_alpha) {
+                            *acc += v / poses as f32;
+                        }
+                    }
+                }
+                self.composite(k, region, &mut light, &mut alpha, out)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// A shape's distorted-pixel box, and its area: the box grown by its
+    /// blur's reach, within the image, with its depth.
+    fn area(&self, cam: &Camera, shape: &Shape) -> Option<([f64; 4], Region)> {
+        let bbox = project_bbox(cam, shape)?;
+        let depth = cam.depth(&shape.center()).max(1.0);
+        let reach = (3.0 * self.look.blur_at(depth)).ceil() + 2.0;
+        let (width, height) = (
+            cam.intrinsics.width as usize,
+            cam.intrinsics.height as usize,
+        );
+        let x0 = (bbox[0] - reach).floor().max(0.0) as usize;
+        let y0 = (bbox[1] - reach).floor().max(0.0) as usize;
+        let x1 = ((bbox[2] + reach).ceil().max(0.0) as usize).min(width);
+        let y1 = ((bbox[3] + reach).ceil().max(0.0) as usize).min(height);
+        (x1 > x0 && y1 > y0).then_some((
+            bbox,
+            Region {
+                x0,
+                y0,
+                w: x1 - x0,
+                h: y1 - y0,
+                depth,
+            },
+        ))
+    }
+
+    /// Draws a link or a card's back straight into the frame: its
+    /// anti-aliased outline blurred by the defocus at its depth, at its
+    /// shade, vignetted, only where the glass is for a reflection.
+    fn draw_plain(&self, k: usize, item: &Item, out: &mut [u8]) -> Result<()> {
+        let cam = self.world.rig.cameras[k];
+        let Some((_, area)) = self.area(&cam, &item.shape) else {
+            return Ok(());
+        };
+        let mut mask = polygon_mask(&cam, &item.shape, area.x0, area.y0, area.w, area.h)?;
+        // Two box filters of the same sigma stand in for a Gaussian: a
+        // near link's blur is wide, and box filters cost the same at any width.
+        let sigma = self.look.blur_at(area.depth);
+        let side = ((6.0 * sigma * sigma + 1.0).sqrt().round() as i32) | 1;
+        if side > 1 {
+            for _ in 0..2 {
+                let src = mask.try_clone()?;
+                imgproc::blur(
+                    &src,
+                    &mut mask,
+                    Size::new(side, side),
+                    Point::new(-1, -1),
+                    core::BORDER_REPLICATE,
+                )?;
+            }
+        }
+        let view = &self.views[k];
+        let width = cam.intrinsics.width as usize;
+        let (dn, flare) = (item.dn as f32, self.look.flare_dn as f32);
+        let mask = mask.data_bytes()?;
+        for y in 0..area.h {
+            let row = (area.y0 + y) * width + area.x0;
+            for x in 0..area.w {
+                let m = mask[y * area.w + x];
+                if m == 0 {
+                    continue;
+                }
+                let i = row + x;
+                let g = if item.mirrored { view.glass[i] } else { 1.0 };
+                let a = f32::from(m) / 255.0 * g;
+                let v = f32::from(out[i]) * (1.0 - a) + (dn * view.gain[i] + flare) * a;
+                out[i] = v.round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        Ok(())
+    }
+
+    /// Draws a card (or its ghost) into a region's light (premultiplied
+    /// DN) and coverage, sampling its texture through each pixel's ray.
+    fn draw_card(
+        &mut self,
+        k: usize,
+        item: &Item,
+        bbox: [f64; 4],
+        region: &Region,
+        light: &mut [f32],
+        alpha: &mut [f32],
+    ) -> Result<()> {
+        let Shape::Card { id, corners } = item.shape else {
+            bail!("only cards are drawn from a texture");
+        };
+        let cam = self.world.rig.cameras[k];
+        // The card's pixels within the region.
+        let x0 = (bbox[0].floor().max(0.0) as usize).max(region.x0);
+        let y0 = (bbox[1].floor().max(0.0) as usize).max(region.y0);
+        let x1 = ((bbox[2].ceil().max(0.0) as usize) + 1).min(region.x0 + region.w);
+        let y1 = ((bbox[3].ceil().max(0.0) as usize) + 1).min(region.y0 + region.h);
+        if x1 <= x0 || y1 <= y0 {
+            return Ok(());
+        }
+        let side = self.shrink_card(id, &cam, &corners)?;
+        let texture = &self.shrunk[&(id, side)];
+        let h = texel_from_normalized(&cam, &corners, texture.width, texture.height)?;
+        let view = &self.views[k];
+        let width = cam.intrinsics.width as usize;
+        let dn = item.dn as f32;
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let i = y * width + x;
+                let r = view.rays[i];
+                let t = h * Vector3::new(r[0], r[1], 1.0);
+                // NaN rays (no lens model there) fail the test and draw nothing.
+                if t.z.is_nan() || t.z <= 0.0 {
+                    continue;
+                }
+                let (value, cover) = texture.sample(t.x / t.z, t.y / t.z);
+                if cover == 0.0 {
+                    continue;
+                }
+                let g = if item.mirrored { view.glass[i] } else { 1.0 };
+                let (c, a) = (value * dn * g, cover * g);
+                let j = (y - region.y0) * region.w + (x - region.x0);
+                if item.ghost {
+                    light[j] += c;
+                } else {
+                    light[j] = c + light[j] * (1.0 - a);
+                    alpha[j] = a + alpha[j] * (1.0 - a);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Caches the card's texture shrunk (area averaging) to about its size
+    /// on screen, as bilinear sampling of a much larger texture aliases the
+    /// edges; returns the side it has in the cache.
+    fn shrink_card(&mut self, id: u32, cam: &Camera, corners: &[Vector3<f64>; 4]) -> Result<i32> {
+        let card = self.cards.get(&id).context("texture per id")?;
+        let px: Vec<Vector2<f64>> = corners.iter().filter_map(|c| cam.project(c).ok()).collect();
+        let on_screen = (0..px.len())
+            .map(|i| (px[i] - px[(i + 1) % px.len()]).norm())
+            .fold(0.0, f64::max);
+        let full = card.cols();
+        let scale = (on_screen / f64::from(full)).min(1.0);
+        let side = if scale < 0.9 {
+            ((f64::from(full) * scale).round() as i32).max(8)
+        } else {
+            full
+        };
+        if !self.shrunk.contains_key(&(id, side)) {
+            let mut small = Mat::default();
+            let source = if side < full {
+                imgproc::resize(
+                    card,
+                    &mut small,
+                    Size::new(side, side),
+                    0.0,
+                    0.0,
+                    imgproc::INTER_AREA,
+                )?;
+                &small
+            } else {
+                card
+            };
+            let picture = Picture::from_mat(source, self.look.paper[0], self.look.paper[1])?;
+            self.shrunk.insert((id, side), picture);
+        }
+        Ok(side)
+    }
+
+    /// Writes a region: what was drawn over what the frame shows there,
+    /// vignetted and blurred by the defocus at its depth.
+    fn composite(
+        &self,
+        k: usize,
+        region: &Region,
+        light: &mut [f32],
+        alpha: &mut [f32],
+        out: &mut [u8],
+    ) -> Result<()> {
+        let view = &self.views[k];
+        let width = self.world.rig.cameras[k].intrinsics.width as usize;
+        for y in 0..region.h {
+            let row = (region.y0 + y) * width + region.x0;
+            for (l, g) in light[y * region.w..(y + 1) * region.w]
+                .iter_mut()
+                .zip(&view.gain[row..row + region.w])
+            {
+                *l *= g;
+            }
+        }
+        let sigma = self.look.blur_at(region.depth);
+        if sigma > 0.05 {
+            blur(light, region.w, region.h, sigma)?;
+            blur(alpha, region.w, region.h, sigma)?;
+        }
+        let flare = self.look.flare_dn as f32;
+        for y in 0..region.h {
+            let row = (region.y0 + y) * width + region.x0;
+            for x in 0..region.w {
+                let j = y * region.w + x;
+                let v = f32::from(out[row + x]) * (1.0 - alpha[j]) + light[j] + flare * alpha[j];
+                out[row + x] = v.round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        Ok(())
+    }
 }
 
-/// Warps a card texture onto the ideal canvas at the projections of its
-/// corners; returns whether the card is in view (and so drawn).
-fn warp_card(
-    canvas: &mut Mat,
-    texture: &Mat,
+/// Gaussian blur of a w x h f32 image in place.
+fn blur(data: &mut [f32], w: usize, h: usize, sigma: f64) -> Result<()> {
+    let src = Mat::new_rows_cols_with_data(h as i32, w as i32, &*data)?.try_clone()?;
+    let mut dst = Mat::new_rows_cols_with_data_mut(h as i32, w as i32, data)?;
+    imgproc::gaussian_blur(
+        &src,
+        &mut dst,
+        Size::new(0, 0),
+        sigma,
+        0.0,
+        core::BORDER_REPLICATE,
+    )?;
+    Ok(())
+}
+
+fn overlaps(a: &Region, b: &Region) -> bool {
+    a.x0 < b.x0 + b.w && b.x0 < a.x0 + a.w && a.y0 < b.y0 + b.h && b.y0 < a.y0 + a.h
+}
+
+fn union(a: &Region, b: &Region) -> Region {
+    let (x0, y0) = (a.x0.min(b.x0), a.y0.min(b.y0));
+    let (x1, y1) = ((a.x0 + a.w).max(b.x0 + b.w), (a.y0 + a.h).max(b.y0 + b.h));
+    Region {
+        x0,
+        y0,
+        w: x1 - x0,
+        h: y1 - y0,
+        depth: a.depth.min(b.depth),
+    }
+}
+
+/// The still scene as one camera sees it.
+fn still_view(cam: &Camera, room: &Room, look: &Look) -> Result<View> {
+    let intr = cam.intrinsics;
+    let (w, h) = (intr.width as usize, intr.height as usize);
+    let mut rays = Vec::with_capacity(w * h);
+    for v in 0..h {
+        for u in 0..w {
+            rays.push(
+                match intr.undistort_pixel(&Vector2::new(u as f64, v as f64)) {
+                    Ok(xy) => [xy.x as f32, xy.y as f32],
+                    Err(_) => [f32::NAN; 2],
+                },
+            );
+        }
+    }
+    let (radiance, glass) = room.trace_image(cam, &rays);
+    let gain = vignetting(w, h, [intr.cx + 0.5, intr.cy + 0.5], look.vignetting);
+    let mut level: Vec<f32> = if look.room {
+        radiance
+            .iter()
+            .map(|r| r * look.exposure_dn as f32)
+            .collect()
+    } else {
+        vec![look.background_dn as f32; w * h]
+    };
+    let sigma = look.blur_at(ROOM_DEPTH_MM);
+    if look.room && sigma > 0.05 {
+        blur(&mut level, w, h, sigma)?;
+    }
+    for (l, g) in level.iter_mut().zip(&gain) {
+        *l *= g;
+    }
+    let flare = look.flare_dn as f32;
+    let image = level
+        .iter()
+        .map(|l| (l + flare).round().clamp(0.0, 255.0) as u8)
+        .collect();
+    Ok(View {
+        rays,
+        image,
+        gain,
+        glass,
+    })
+}
+
+/// Distorted-pixel bounding box (x0, y0, x1, y1) of a shape, if it is in
+/// front of the camera and touches the image.
+fn project_bbox(cam: &Camera, shape: &Shape) -> Option<[f64; 4]> {
+    let points = shape.points();
+    if points.iter().any(|p| cam.depth(p) <= 10.0) {
+        return None;
+    }
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    let pad = match shape {
+        Shape::Limb { radius, .. } => {
+            let depth = points
+                .iter()
+                .map(|p| cam.depth(p))
+                .fold(f64::INFINITY, f64::min);
+            cam.intrinsics.fx * radius * 1.2 / depth
+        }
+        _ => 0.0,
+    };
+    for p in &points {
+        let px = cam.project(p).ok()?;
+        b = [
+            b[0].min(px.x - pad),
+            b[1].min(px.y - pad),
+            b[2].max(px.x + pad),
+            b[3].max(px.y + pad),
+        ];
+    }
+    let (w, h) = (
+        f64::from(cam.intrinsics.width),
+        f64::from(cam.intrinsics.height),
+    );
+    // Barrel distortion bows edges out a little: a pixel of slack.
+    let b = [b[0] - 1.0, b[1] - 1.0, b[2] + 1.0, b[3] + 1.0];
+    (b[2] > 0.0 && b[3] > 0.0 && b[0] < w && b[1] < h).then_some(b)
+}
+
+/// The homography from a card's undistorted normalised image coordinates
+/// to its texture's texel coordinates (texel centres at integers, so the
+/// card's outer edge is at -0.5).
+fn texel_from_normalized(
     cam: &Camera,
     corners: &[Vector3<f64>; 4],
-) -> Result<bool> {
-    let k = cam.intrinsics.k();
-    let mut ideal = Vector::<Point2f>::new();
-    let mut distorted = [Vector2::zeros(); 4];
-    for (i, c) in corners.iter().enumerate() {
-        if cam.depth(c) <= 1.0 {
-            return Ok(false);
-        }
+    width: usize,
+    height: usize,
+) -> Result<Matrix3<f32>> {
+    let mut seen = Vector::<Point2f>::new();
+    for c in corners {
         let xy = cam.normalized(c)?;
-        let p = k * Vector3::new(xy.x, xy.y, 1.0);
-        ideal.push(Point2f::new(p.x as f32, p.y as f32));
-        distorted[i] = cam.project(c)?;
+        seen.push(Point2f::new(xy.x as f32, xy.y as f32));
     }
-    let inside = distorted.iter().any(|p| cam.intrinsics.contains(p, 0.0));
-    if !inside {
-        return Ok(false);
-    }
-    // Shrink the texture (area averaging) to about the card's size on screen:
-    // bilinear sampling of a much larger texture aliases the edges.
-    let on_screen = (0..4)
-        .map(|i| {
-            let (a, b) = (
-                ideal.get(i).unwrap_or_default(),
-                ideal.get((i + 1) % 4).unwrap_or_default(),
-            );
-            f64::from(((a.x - b.x).powi(2) + (a.y - b.y).powi(2)).sqrt())
-        })
-        .fold(0.0, f64::max);
-    let scale = (on_screen / f64::from(texture.cols())).min(1.0);
-    let mut shrunk = Mat::default();
-    let texture = if scale < 0.9 {
-        let side = ((f64::from(texture.cols()) * scale).round() as i32).max(8);
-        imgproc::resize(
-            texture,
-            &mut shrunk,
-            Size::new(side, side),
-            0.0,
-            0.0,
-            imgproc::INTER_AREA,
-        )?;
-        &shrunk
-    } else {
-        texture
-    };
-    // Texel centres sit at integer coordinates, so the texture's outer edge is at -0.5.
-    let (w, h) = (texture.cols() as f32 - 0.5, texture.rows() as f32 - 0.5);
-    let source = Vector::<Point2f>::from_iter([
+    let (w, h) = (width as f32 - 0.5, height as f32 - 0.5);
+    let texel = Vector::<Point2f>::from_iter([
         Point2f::new(-0.5, -0.5),
         Point2f::new(w, -0.5),
         Point2f::new(w, h),
         Point2f::new(-0.5, h),
     ]);
-    let homography = imgproc::get_perspective_transform(&source, &ideal, core::DECOMP_LU)?;
-    let size = Size::new(canvas.cols(), canvas.rows());
-    let mut out = canvas.clone();
-    imgproc::warp_perspective(
-        texture,
-        &mut out,
-        &homography,
-        size,
-        imgproc::INTER_LINEAR,
-        core::BORDER_TRANSPARENT,
-        Scalar::default(),
-    )?;
-    *canvas = out;
-    Ok(true)
-}
-
-/// For every output (distorted) pixel, the ideal pixel it shows.
-fn distortion_maps(cam: &Camera) -> Result<(Mat, Mat)> {
-    let intr = cam.intrinsics;
-    let (w, h) = (intr.width as i32, intr.height as i32);
-    let mut map_x = Mat::new_rows_cols_with_default(h, w, core::CV_32FC1, Scalar::all(-1.0))?;
-    let mut map_y = Mat::new_rows_cols_with_default(h, w, core::CV_32FC1, Scalar::all(-1.0))?;
-    let k = intr.k();
-    for v in 0..h {
-        for u in 0..w {
-            if let Ok(xy) = intr.undistort_pixel(&Vector2::new(f64::from(u), f64::from(v))) {
-                let p = k * Vector3::new(xy.x, xy.y, 1.0);
-                *map_x.at_2d_mut::<f32>(v, u)? = p.x as f32;
-                *map_y.at_2d_mut::<f32>(v, u)? = p.y as f32;
-            }
+    let m = imgproc::get_perspective_transform(&seen, &texel, core::DECOMP_LU)?;
+    let mut out = Matrix3::zeros();
+    for r in 0..3 {
+        for c in 0..3 {
+            out[(r, c)] = *m.at_2d::<f64>(r as i32, c as i32)? as f32;
         }
     }
-    Ok((map_x, map_y))
+    Ok(out)
 }
 
-/// Blur and additive Gaussian noise, in place, seeded.
-fn degrade<M: core::ToInputArray + core::ToOutputArray + MatTraitConst>(
-    image: &mut M,
-    noise: ImageNoise,
-    seed: u64,
-) -> Result<()> {
-    if noise.blur_sigma > 0.0 {
-        let mut blurred = Mat::default();
-        imgproc::gaussian_blur(
-            &*image,
-            &mut blurred,
-            Size::new(0, 0),
-            noise.blur_sigma,
-            0.0,
-            core::BORDER_REPLICATE,
-        )?;
-        blurred.copy_to(image)?;
+/// Coverage (0-255, anti-aliased) of a plate or limb over a w x h box at (x0, y0).
+fn polygon_mask(
+    cam: &Camera,
+    shape: &Shape,
+    x0: usize,
+    y0: usize,
+    w: usize,
+    h: usize,
+) -> Result<Mat> {
+    const SHIFT: i32 = 4;
+    let scale = f64::from(1 << SHIFT);
+    let to_point = |p: Vector2<f64>| {
+        Point::new(
+            ((p.x - x0 as f64) * scale).round() as i32,
+            ((p.y - y0 as f64) * scale).round() as i32,
+        )
+    };
+    let mut mask =
+        Mat::new_rows_cols_with_default(h as i32, w as i32, core::CV_8UC1, Scalar::all(0.0))?;
+    match *shape {
+        Shape::Plate { corners } => {
+            let mut poly = Vector::<Point>::new();
+            for c in &corners {
+                poly.push(to_point(cam.project(c)?));
+            }
+            imgproc::fill_convex_poly(
+                &mut mask,
+                &poly,
+                Scalar::all(255.0),
+                imgproc::LINE_AA,
+                SHIFT,
+            )?;
+        }
+        Shape::Limb { a, b, radius } => {
+            const SAMPLES: usize = 5;
+            let along: Vec<(Vector2<f64>, f64)> = (0..SAMPLES)
+                .map(|i| {
+                    let p = a + (b - a) * (i as f64 / (SAMPLES - 1) as f64);
+                    Ok((cam.project(&p)?, cam.intrinsics.fx * radius / cam.depth(&p)))
+                })
+                .collect::<Result<_, geometry::GeometryError>>()?;
+            let dir = along[SAMPLES - 1].0 - along[0].0;
+            if dir.norm() > 1.0 {
+                let normal = Vector2::new(-dir.y, dir.x).normalize();
+                let mut poly = Vector::<Point>::new();
+                for (p, r) in &along {
+                    poly.push(to_point(p + normal * *r));
+                }
+                for (p, r) in along.iter().rev() {
+                    poly.push(to_point(p - normal * *r));
+                }
+                let polys = Vector::<Vector<Point>>::from_iter([poly]);
+                imgproc::fill_poly(
+                    &mut mask,
+                    &polys,
+                    Scalar::all(255.0),
+                    imgproc::LINE_AA,
+                    SHIFT,
+                    Point::default(),
+                )?;
+            }
+            for (p, r) in [along[0], along[SAMPLES - 1]] {
+                let radius = (r * scale).round() as i32;
+                imgproc::circle(
+                    &mut mask,
+                    to_point(p),
+                    radius,
+                    Scalar::all(255.0),
+                    imgproc::FILLED,
+                    imgproc::LINE_AA,
+                    SHIFT,
+                )?;
+            }
+        }
+        Shape::Card { .. } => bail!("cards are drawn from their texture"),
     }
-    if noise.noise_sigma > 0.0 {
-        let mut n = Mat::new_rows_cols_with_default(
-            image.rows(),
-            image.cols(),
-            core::CV_16SC1,
-            Scalar::default(),
-        )?;
-        core::set_rng_seed((seed % i32::MAX as u64) as i32)?;
-        core::randn(&mut n, &Scalar::all(0.0), &Scalar::all(noise.noise_sigma))?;
-        let mut sum = Mat::default();
-        core::add(&*image, &n, &mut sum, &core::no_array(), core::CV_8U)?;
-        sum.copy_to(image)?;
-    }
-    Ok(())
+    Ok(mask)
 }

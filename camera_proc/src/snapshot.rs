@@ -5,20 +5,27 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use opencv::core::{Mat, Vector};
 
+use crate::look::LookName;
 use crate::render::Renderer;
 use geometry::sim::{Facing, SimWorld};
 
-/// Renders one stereo pair of the simulated scene with the arm at `q`
+/// Renders one stereo pair of the simulated scene in `look` with the arm at `q`
 /// (encoder readings, rad) to `OUT_left.png` and `OUT_right.png`, and
 /// prints which markers each image shows.
-pub fn snapshot(mirror: usize, q: &[f64], facing: Facing, out: &Path) -> Result<()> {
+pub fn snapshot(
+    mirror: usize,
+    q: &[f64],
+    facing: Facing,
+    look: LookName,
+    out: &Path,
+) -> Result<()> {
     let world = SimWorld::nico(mirror)?;
     let intr = world.rig.cameras[0].intrinsics;
     let dof = world.rig.arm.as_ref().map_or(0, |a| a.dof());
     if q.len() != dof {
         bail!("--q: {} joint angles given, the arm has {dof}", q.len());
     }
-    let mut renderer = Renderer::new(world)?;
+    let mut renderer = Renderer::with_look(world, look.look())?;
     let n = (intr.width * intr.height) as usize;
     let (mut left, mut right) = (vec![0u8; n], vec![0u8; n]);
     let truth = renderer.render(q, facing, 0, &mut left, &mut right)?;

@@ -8,6 +8,7 @@ use anyhow::{Result, bail};
 use messages::{Bus, Encoding, FrameHeader, JointPositions, Role, now_ns, topics};
 
 use crate::clock::FrameClock;
+use crate::look::Look;
 use crate::render::Renderer;
 use crate::source::StereoSource;
 use geometry::sim::{Facing, SimWorld};
@@ -33,22 +34,37 @@ fn facing(role: u32) -> Facing {
     }
 }
 
+/// Joint speeds (rad/s) between two position messages of the arm, if they
+/// are close enough in time (100 ms) to say how it moves now.
+fn joint_velocity(last: &JointPositions, now: &JointPositions) -> Option<Vec<f64>> {
+    let dt = (now.stamp_ns - last.stamp_ns) as f64 * 1e-9;
+    (dt > 0.0 && dt <= 0.1).then(|| {
+        now.joints()
+            .iter()
+            .zip(last.joints())
+            .map(|(a, b)| (a - b) / dt)
+            .collect()
+    })
+}
+
 /// The simulated head: renders what it sees at `fps`, the arm where the
 /// arm driver's joint positions put it (its card turned as the current pose
 /// goal's role says), until `tail_frames` after the goal that ends the plan.
-pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Result<()> {
+pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32, look: Look) -> Result<()> {
     if !(fps > 0.0 && fps <= 1000.0) {
         bail!("--fps must be in (0, 1000]");
     }
     let world = SimWorld::nico(mirror)?;
     let intr = world.rig.cameras[0].intrinsics;
     let dof = world.rig.arm.as_ref().map_or(0, |a| a.dof());
-    let mut renderer = Renderer::new(world)?;
+    let mut renderer = Renderer::with_look(world, look)?;
     let bus = Bus::new(prefix, "camera_proc")?;
     let frames = bus.frame_publisher::<topics::Frames>(2 * (intr.width * intr.height) as usize)?;
     let joints = bus.subscriber::<topics::JointPositions>()?;
     let goals = bus.subscriber::<topics::PoseGoal>()?;
     let mut latest: Option<JointPositions> = None;
+    // The arm's speed from its last two positions, for motion blur.
+    let mut velocity: Option<Vec<f64>> = None;
     let (mut role, mut finished) = (Role::Train as u32, false);
     let mut rejections = messages::Rejections::default();
     let mut order = messages::StampOrder::default();
@@ -56,7 +72,7 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
     let mut clock = FrameClock::new(fps);
     let mut last_published = None::<i64>;
     let mut stats = messages::stats::StageStats::new("camera_proc");
-    tracing::info!(mirror, fps, "rendering the simulated head");
+    tracing::info!(mirror, fps, ?look, "rendering the simulated head");
     // A fine tick keeps frames within a millisecond of their schedule.
     let tick = Duration::from_nanos(clock.period_ns() as u64).min(Duration::from_millis(1));
     bus.wake()?
@@ -66,7 +82,10 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
                 // dropped, and the last good pose kept.
                 match s.fault(dof).map_or_else(|| order.check(s.stamp_ns), Err) {
                     Err(why) => rejections.reject("joint positions message", s.seq, &why),
-                    Ok(()) => latest = Some(s),
+                    Ok(()) => {
+                        velocity = latest.as_ref().and_then(|last| joint_velocity(last, &s));
+                        latest = Some(s);
+                    }
                 }
             }
             while let Some(g) = goals.receive()? {
@@ -88,7 +107,14 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32) -> Resul
             let cpu = messages::stats::StepStart::now();
             frames.publish(h, |left, right| {
                 renderer
-                    .render(state.joints(), facing(role), seq, left, right)
+                    .render_moving(
+                        state.joints(),
+                        velocity.as_deref(),
+                        facing(role),
+                        seq,
+                        left,
+                        right,
+                    )
                     .map(|_| true)
             })??;
             stats.cpu_step(cpu);

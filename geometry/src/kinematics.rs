@@ -156,20 +156,32 @@ impl ChainJoint {
 impl Chain {
     /// Tip link in the base frame for `q` plus `offsets` (empty for none).
     pub fn base_from_tip(&self, q: &[f64], offsets: &[f64]) -> Isometry3<f64> {
+        self.base_from_joints(q, offsets)
+            .last()
+            .copied()
+            .unwrap_or_else(Isometry3::identity)
+            * self.tip
+    }
+
+    /// Each joint's moving frame in the base frame, base to tip.
+    fn base_from_joints(&self, q: &[f64], offsets: &[f64]) -> Vec<Isometry3<f64>> {
         let input = |i: usize| q[i] + offsets.get(i).copied().unwrap_or(0.0);
         let mut t = Isometry3::identity();
-        for j in &self.joints {
-            let value = match j.value {
-                JointValue::Own(i) => input(i),
-                JointValue::Mimic {
-                    of,
-                    multiplier,
-                    offset,
-                } => multiplier * input(of) + offset,
-            };
-            t *= j.transform(value);
-        }
-        t * self.tip
+        self.joints
+            .iter()
+            .map(|j| {
+                let value = match j.value {
+                    JointValue::Own(i) => input(i),
+                    JointValue::Mimic {
+                        of,
+                        multiplier,
+                        offset,
+                    } => multiplier * input(of) + offset,
+                };
+                t *= j.transform(value);
+                t
+            })
+            .collect()
     }
 }
 
@@ -280,6 +292,42 @@ impl Arm {
         Ok(t.transform_point(&Point3::from(self.tool)).coords)
     }
 
+    /// The points the arm's links run between, in the world: the base, each
+    /// joint's frame after its motion (a point repeats where joints share an
+    /// origin), the tip and the end-effector. For drawing the arm.
+    pub fn skeleton(&self, q: &[f64], offsets: &[f64]) -> Result<Vec<Vector3<f64>>, GeometryError> {
+        self.check_lengths(q, offsets)?;
+        let origin = |t: &Matrix4<f64>| Vector3::new(t[(0, 3)], t[(1, 3)], t[(2, 3)]);
+        let base = self.world_from_base.to_homogeneous();
+        let mut points = vec![origin(&base)];
+        match &self.model {
+            ArmModel::Dh(joints) => {
+                let mut t = base;
+                for (i, joint) in joints.iter().enumerate() {
+                    let extra = offsets.get(i).copied().unwrap_or(0.0);
+                    t *= joint.transform(q[i] + joint.theta_offset + extra);
+                    points.push(origin(&t));
+                }
+            }
+            ArmModel::Chain(c) => {
+                let frames = c.base_from_joints(q, offsets);
+                points.extend(
+                    frames
+                        .iter()
+                        .map(|t| (self.world_from_base * t).translation.vector),
+                );
+                let last = frames.last().copied().unwrap_or_else(Isometry3::identity);
+                points.push((self.world_from_base * last * c.tip).translation.vector);
+            }
+        }
+        points.push(self.end_effector(q, offsets)?);
+        if points.iter().all(|p| p.iter().all(|v| v.is_finite())) {
+            Ok(points)
+        } else {
+            Err(GeometryError::NonFinite("joint values"))
+        }
+    }
+
     /// Whether every joint value lies within its limits.
     pub fn within_limits(&self, q: &[f64]) -> bool {
         q.len() == self.dof()
@@ -322,6 +370,25 @@ mod tests {
             );
             assert!((p - expect).norm() < 1e-12, "{p} vs {expect}");
         }
+    }
+
+    #[test]
+    fn the_skeleton_runs_from_the_base_through_the_joints_to_the_end_effector() {
+        let mut arm = planar_arm(Isometry3::from_parts(
+            Translation3::new(5.0, 0.0, 0.0),
+            UnitQuaternion::identity(),
+        ));
+        arm.tool = Vector3::new(10.0, 0.0, 0.0);
+        let (q1, q2) = (0.4, -0.9);
+        let points = arm.skeleton(&[q1, q2], &[]).unwrap();
+        let elbow = Vector3::new(5.0 + 130.0 * q1.cos(), 130.0 * q1.sin(), 0.0);
+        assert_eq!(points.len(), 4);
+        assert!((points[0] - Vector3::new(5.0, 0.0, 0.0)).norm() < 1e-12);
+        assert!((points[1] - elbow).norm() < 1e-12, "{}", points[1]);
+        let tip = elbow + 127.0 * Vector3::new((q1 + q2).cos(), (q1 + q2).sin(), 0.0);
+        assert!((points[2] - tip).norm() < 1e-12);
+        assert!((points[3] - arm.end_effector(&[q1, q2], &[]).unwrap()).norm() < 1e-12);
+        assert!(arm.skeleton(&[0.0], &[]).is_err());
     }
 
     #[test]

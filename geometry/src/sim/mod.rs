@@ -11,8 +11,8 @@
 mod world;
 
 pub use world::{
-    ARM_MARKER_ID, Facing, FixedMarker, HIDDEN_OBJECT_ID, ImageNoise, MARKER_MARGIN_MM,
-    MARKER_SIZE_MM, SeenCard, SimWorld, card_corners,
+    ARM_MARKER_ID, Facing, FixedMarker, HIDDEN_OBJECT_ID, MARKER_MARGIN_MM, MARKER_SIZE_MM,
+    ROBOT_BODY_MM, SeenCard, SimWorld, card_corners, segment_meets_box,
 };
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
@@ -291,6 +291,38 @@ fn card_in_view(cam: &Camera, p: &Vector3<f64>, glass: Option<&Mirror>) -> bool 
     })
 }
 
+/// Whether the card at `p` (any orientation) stands in the way of the
+/// camera's view of its own reflection: a ray from the camera to the glass
+/// towards the reflected card (centre and the card's extent around it)
+/// passes within the card's half diagonal of `p`.
+fn card_blocks_its_reflection(cam: &Camera, p: &Vector3<f64>, mirror: &Mirror) -> bool {
+    let virt = mirror.plane.reflect_point(p);
+    let reach = CARD_HALF_SIDE_MM * std::f64::consts::SQRT_2;
+    let h = CARD_HALF_SIDE_MM;
+    let offsets = [
+        Vector3::zeros(),
+        Vector3::x() * h,
+        -Vector3::x() * h,
+        Vector3::y() * h,
+        -Vector3::y() * h,
+    ];
+    offsets.iter().any(|o| {
+        let target = virt + o;
+        let (de, dt) = (
+            mirror.plane.signed_distance(&cam.center),
+            mirror.plane.signed_distance(&target),
+        );
+        if de - dt <= 0.0 {
+            return false;
+        }
+        let glass = cam.center + (target - cam.center) * (de / (de - dt));
+        // Distance from p to the segment camera -> glass.
+        let d = glass - cam.center;
+        let t = ((p - cam.center).dot(&d) / d.norm_squared()).clamp(0.0, 1.0);
+        (cam.center + d * t - p).norm() < reach
+    })
+}
+
 /// Draws a dataset for mirror `mirror_index` of `scene`. Deterministic in `seed`.
 pub fn generate(
     scene: &Scene,
@@ -340,7 +372,9 @@ pub fn generate(
                 return None;
             }
             px[k] = cams[k].project(&virt).ok()?;
-            if !card_in_view(&cams[k], &virt, Some(&mirror)) {
+            if !card_in_view(&cams[k], &virt, Some(&mirror))
+                || card_blocks_its_reflection(&cams[k], p, &mirror)
+            {
                 return None;
             }
         }

@@ -1,7 +1,8 @@
 //! The simulated world the camera renders: the Nico scene in front of one
 //! mirror placement, the true encoder offsets, the marker cards (the arm's
 //! and a hidden object's) and where the cameras see each card. Pure
-//! geometry: the drawing itself is `camera_proc::render`'s.
+//! geometry: the drawing itself, and what the image looks like, is
+//! `camera_proc::render`'s.
 
 use nalgebra::Vector3;
 
@@ -17,6 +18,33 @@ pub const ARM_MARKER_ID: u32 = 0;
 /// Id of the object placed where only the mirror shows it.
 pub const HIDDEN_OBJECT_ID: u32 = 7;
 
+/// The robot's head (around the cameras), neck and torso as boxes: x, y,
+/// z extents in the world, mm. The renderer draws them (seen in the glass);
+/// the hidden object is placed where they do not hide its reflection.
+pub const ROBOT_BODY_MM: [[[f64; 2]; 3]; 3] = [
+    [[-75.0, 75.0], [-75.0, 65.0], [-85.0, 12.0]],
+    [[-25.0, 25.0], [65.0, 110.0], [-40.0, 10.0]],
+    [[-90.0, 90.0], [110.0, 430.0], [-70.0, 50.0]],
+];
+
+/// Whether the segment from `a` to `b` passes through the box `extent`.
+pub fn segment_meets_box(a: &Vector3<f64>, b: &Vector3<f64>, extent: &[[f64; 2]; 3]) -> bool {
+    let d = b - a;
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for k in 0..3 {
+        if d[k].abs() < 1e-12 {
+            if a[k] < extent[k][0] || a[k] > extent[k][1] {
+                return false;
+            }
+            continue;
+        }
+        let (p, q) = ((extent[k][0] - a[k]) / d[k], (extent[k][1] - a[k]) / d[k]);
+        t0 = t0.max(p.min(q));
+        t1 = t1.min(p.max(q));
+    }
+    t0 <= t1
+}
+
 /// A marked object fixed in the world (not on the arm).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FixedMarker {
@@ -24,15 +52,6 @@ pub struct FixedMarker {
     pub id: u32,
     /// Centre in the world, mm.
     pub center: Vector3<f64>,
-}
-
-/// Image degradation.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImageNoise {
-    /// Gaussian blur sigma, px (0 = none).
-    pub blur_sigma: f64,
-    /// Additive sensor noise, grey levels (0 = none).
-    pub noise_sigma: f64,
 }
 
 /// Everything the simulated camera knows: the true world, not the robot's model.
@@ -48,8 +67,6 @@ pub struct SimWorld {
     pub arm_marker: u32,
     /// Other marked objects.
     pub fixed: Vec<FixedMarker>,
-    /// Image degradation.
-    pub noise: ImageNoise,
 }
 
 /// Which way a marker card is turned.
@@ -98,10 +115,6 @@ impl SimWorld {
             true_offsets: nico_noise().joint_offsets,
             arm_marker: ARM_MARKER_ID,
             fixed,
-            noise: ImageNoise {
-                blur_sigma: 0.6,
-                noise_sigma: 2.0,
-            },
         })
     }
 
@@ -135,8 +148,8 @@ impl SimWorld {
 }
 
 /// A spot behind the head (never in direct view) whose card reflection both
-/// cameras see whole through the glass: the first of a fixed grid, nearest
-/// the head first.
+/// cameras see whole through the glass, not hidden by the robot's body: the
+/// first of a fixed grid, nearest the head first.
 fn hidden_object_spot(rig: &Rig, mirror: &Mirror) -> Option<Vector3<f64>> {
     let mut candidates = Vec::new();
     for z in [-60.0, -100.0, -140.0] {
@@ -152,9 +165,19 @@ fn hidden_object_spot(rig: &Rig, mirror: &Mirror) -> Option<Vector3<f64>> {
     candidates.into_iter().find(|c| {
         let corners = card_corners(c, &mirror.plane.reflect_point(&head), side)
             .map(|p| mirror.plane.reflect_point(&p));
+        let real = card_corners(c, &mirror.plane.reflect_point(&head), side);
         rig.cameras.iter().all(|cam| {
-            corners.iter().all(|v| {
+            corners.iter().zip(&real).all(|(v, r)| {
+                // The light's path from the card to the glass passes no part of the robot.
+                let (de, dv) = (
+                    mirror.plane.signed_distance(&cam.center),
+                    mirror.plane.signed_distance(v),
+                );
+                let glass = cam.center + (v - cam.center) * (de / (de - dv));
                 mirror.ray_hits_glass(&cam.center, v)
+                    && !ROBOT_BODY_MM
+                        .iter()
+                        .any(|b| segment_meets_box(r, &glass, b))
                     && cam.depth(v) > 0.0
                     && cam
                         .project(v)
