@@ -131,7 +131,8 @@ fn a_stereo_video_of_real_photographs_plays_through_the_tracker_without_loss() {
     let detections = bus.subscriber::<topics::Detections>().unwrap();
     let _tracker = KillOnDrop(
         Command::new(bins.join("tracker_proc"))
-            .args(["run", "--prefix", &prefix])
+            // Each frame is another photograph: every image searched whole.
+            .args(["run", "--prefix", &prefix, "--full-scan-every", "1"])
             .spawn()
             .unwrap(),
     );

@@ -22,12 +22,13 @@
 pub mod decode;
 pub mod real_set;
 pub mod refine;
+pub mod regions;
 pub mod step;
 
 pub use decode::{
     Checks, CodeBook, Correction, Decoded, Reading, Refusal, quad_center, shortest_side,
 };
-pub use step::{Tracked, Tracker};
+pub use step::{FULL_SCAN_EVERY, Tracked, Tracker};
 
 use anyhow::{Context, Result};
 use messages::Marker;

@@ -29,6 +29,11 @@ enum Command {
         /// Only find markers as printed (no mirror-reversed ones).
         #[arg(long)]
         no_mirrored: bool,
+        /// Search each image whole every N frames, and in between only
+        /// around the markers of the last frame (a marker lost there brings
+        /// the full scan forward); 1 searches every frame whole.
+        #[arg(long, value_name = "N", default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
+        full_scan_every: u32,
     },
     /// Print each image's detections as JSON lines (id, mirrored, corners, center).
     Detect {
@@ -65,14 +70,14 @@ fn detect_files(images: &[PathBuf]) -> Result<()> {
     Ok(())
 }
 
-fn run(prefix: &str, mirrored: bool) -> Result<()> {
-    let mut tracker = Tracker::new(mirrored)?;
+fn run(prefix: &str, mirrored: bool, full_scan_every: u32) -> Result<()> {
+    let mut tracker = Tracker::with_full_scan_every(mirrored, full_scan_every)?;
     let bus = Bus::new(prefix, "tracker_proc")?;
     let frames = bus.frame_subscriber::<topics::Frames>()?;
     let publisher = bus.publisher::<topics::Detections>()?;
     let mut stats = messages::stats::StageStats::new("tracker_proc");
     let mut count = 0u64;
-    tracing::info!(mirrored, "tracking");
+    tracing::info!(mirrored, full_scan_every, "tracking");
     bus.wake()?
         .run(&[frames.listener()], None, || -> Result<_> {
             loop {
@@ -94,6 +99,9 @@ fn run(prefix: &str, mirrored: bool) -> Result<()> {
         })?;
     stats.count("frames_missed", tracker.frames_missed());
     stats.count("rejected", tracker.rejected());
+    let (full, windows) = tracker.scans();
+    stats.count("images_scanned_whole", full);
+    stats.count("images_scanned_by_windows", windows);
     stats.finish();
     tracing::info!(
         frames = count,
@@ -108,7 +116,8 @@ fn main() -> ExitCode {
         Command::Run {
             prefix,
             no_mirrored,
-        } => run(&prefix, !no_mirrored),
+            full_scan_every,
+        } => run(&prefix, !no_mirrored, full_scan_every),
         Command::Detect { images } => detect_files(&images),
     })
 }

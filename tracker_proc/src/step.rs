@@ -8,6 +8,11 @@ use opencv::core::{Mat, Rect};
 use opencv::prelude::*;
 
 use crate::Detector;
+use crate::regions::RegionTracker;
+
+/// Frames between full scans of an image by default (a third of a second
+/// at 30 fps); see [`RegionTracker`].
+pub const FULL_SCAN_EVERY: u32 = 10;
 
 /// What one frame gave.
 // One per frame, handed straight on: boxing the detections would allocate per frame.
@@ -25,6 +30,7 @@ pub enum Tracked {
 /// sequence, and its counters.
 pub struct Tracker {
     detector: Detector,
+    regions: RegionTracker,
     order: StampOrder,
     rejections: Rejections,
     last_seq: Option<u64>,
@@ -33,9 +39,17 @@ pub struct Tracker {
 
 impl Tracker {
     /// A tracker; with `mirrored`, it also finds mirror-reversed markers.
+    /// Images are searched whole every [`FULL_SCAN_EVERY`] frames and by
+    /// windows around the last markers in between.
     pub fn new(mirrored: bool) -> Result<Self> {
+        Self::with_full_scan_every(mirrored, FULL_SCAN_EVERY)
+    }
+
+    /// A tracker searching images whole every `n` frames (1: always).
+    pub fn with_full_scan_every(mirrored: bool, n: u32) -> Result<Self> {
         Ok(Self {
             detector: Detector::new(mirrored)?,
+            regions: RegionTracker::new(n),
             order: StampOrder::default(),
             rejections: Rejections::default(),
             last_seq: None,
@@ -79,7 +93,7 @@ impl Tracker {
                 Rect::new(0, 0, header.width as i32, header.height as i32),
             )?;
             let mut markers = CameraMarkers::default();
-            for m in self.detector.detect(&roi)? {
+            for m in self.regions.detect(&mut self.detector, k, &roi)?.0 {
                 markers.push(m);
             }
             out.cameras[k] = markers;
@@ -90,6 +104,11 @@ impl Tracker {
     /// Frames dropped as malformed or out of order.
     pub fn rejected(&self) -> u64 {
         self.rejections.count()
+    }
+
+    /// Images searched whole, and by windows around the last markers.
+    pub fn scans(&self) -> (u64, u64) {
+        self.regions.scans()
     }
 
     /// Frames never received (gaps in the sequence).

@@ -312,3 +312,78 @@ fn realistic_frames_cost_the_tracker_what_real_photographs_do() {
     assert!(median <= 0.3, "median centre error {median:.3} px");
     assert!(p95 < 1.0, "95th percentile centre error {p95:.3} px");
 }
+
+/// Region tracking on a moving arm (realistic look): it finds what full
+/// scans find, at the same corners, searching most images by windows.
+#[test]
+fn region_tracking_finds_what_full_scans_find() {
+    use messages::{Encoding, FrameHeader};
+    use tracker_proc::{Tracked, Tracker};
+    let data = generate(
+        &nico_scene(),
+        0,
+        &nico_noise(),
+        Counts {
+            train: 6,
+            test: 0,
+            direct: 0,
+        },
+        5,
+    )
+    .unwrap();
+    let poses: Vec<Vec<f64>> = data
+        .train
+        .iter()
+        .map(|s| s.joints.clone().unwrap())
+        .collect();
+    let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
+    let mut tracker = Tracker::new(true).unwrap();
+    let mut full = Detector::new(true).unwrap();
+    let (mut wanted, mut found, mut worst) = (0, 0, 0.0f64);
+    for (seq, (q, speed)) in geometry::sim::sweep(&poses, 4, 4, 30.0).iter().enumerate() {
+        let (mut l, mut r) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);
+        renderer
+            .render_moving(q, Some(speed), Facing::Mirror, seq as u64, &mut l, &mut r)
+            .unwrap();
+        let payload = [l.clone(), r.clone()].concat();
+        let header = FrameHeader {
+            seq: seq as u64,
+            stamp_ns: seq as i64 + 1,
+            published_ns: 0,
+            width: 640,
+            height: 480,
+            stride: 640,
+            encoding: Encoding::Mono8 as u32,
+        };
+        let Tracked::Detections(d) = tracker.step(&header, &payload).unwrap() else {
+            panic!("frame {seq} refused");
+        };
+        for (k, image) in [l, r].into_iter().enumerate() {
+            let mat = Mat::from_slice(&image)
+                .unwrap()
+                .reshape(1, 480)
+                .unwrap()
+                .try_clone()
+                .unwrap();
+            for m in full.detect(&mat).unwrap() {
+                wanted += 1;
+                let same = d.cameras[k]
+                    .iter()
+                    .filter(|t| t.id == m.id && t.mirrored == m.mirrored)
+                    .map(|t| (t.center[0] - m.center[0]).hypot(t.center[1] - m.center[1]))
+                    .fold(f64::INFINITY, f64::min);
+                if same < 1.0 {
+                    found += 1;
+                    worst = worst.max(same);
+                }
+            }
+        }
+    }
+    let (whole, windows) = tracker.scans();
+    eprintln!(
+        "region tracking: {found} of the {wanted} markers full scans find, centres within {worst:.4} px; {whole} images scanned whole, {windows} by windows"
+    );
+    assert!(windows > 2 * whole, "{whole} whole, {windows} by windows");
+    assert!(found as f64 >= 0.95 * wanted as f64, "{found} of {wanted}");
+    assert!(worst < 0.05, "centres differ by up to {worst} px");
+}

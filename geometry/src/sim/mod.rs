@@ -269,6 +269,42 @@ fn nico_noise_shaped(pixel_sigma: f64, offset_scale: f64, dof: usize) -> NoiseMo
     }
 }
 
+/// The arm's frames going through `poses` as a camera at `fps` sees it:
+/// from each pose to the next in `move_frames` frames at constant joint
+/// speed, then still for `dwell_frames`. Per frame: joint values and joint
+/// speeds (rad/s).
+pub fn sweep(
+    poses: &[Vec<f64>],
+    move_frames: usize,
+    dwell_frames: usize,
+    fps: f64,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let mut frames = Vec::new();
+    for (i, pose) in poses.iter().enumerate() {
+        if let (Some(prev), true) = (i.checked_sub(1).map(|j| &poses[j]), move_frames > 0) {
+            let seconds = move_frames as f64 / fps;
+            let speed: Vec<f64> = pose
+                .iter()
+                .zip(prev)
+                .map(|(b, a)| (b - a) / seconds)
+                .collect();
+            for f in 1..=move_frames {
+                let t = f as f64 / move_frames as f64;
+                let q = prev
+                    .iter()
+                    .zip(pose)
+                    .map(|(a, b)| a + (b - a) * t)
+                    .collect();
+                frames.push((q, speed.clone()));
+            }
+        }
+        for _ in 0..dwell_frames {
+            frames.push((pose.clone(), vec![0.0; pose.len()]));
+        }
+    }
+    frames
+}
+
 /// Whether a card of half side [`CARD_HALF_SIDE_MM`] centred at `p` (any
 /// orientation) projects inside the image with [`IMAGE_MARGIN_PX`] to spare,
 /// and, for a virtual point `p` behind `glass`, is seen through the glass.
@@ -482,6 +518,16 @@ mod tests {
                 .unwrap()
                 .train
         );
+    }
+
+    #[test]
+    fn a_sweep_moves_at_constant_speed_then_dwells() {
+        let frames = sweep(&[vec![0.0, 1.0], vec![1.0, 0.0]], 4, 2, 40.0);
+        assert_eq!(frames.len(), 2 + 4 + 2);
+        assert_eq!(frames[1], (vec![0.0, 1.0], vec![0.0, 0.0]));
+        assert!((frames[3].0[0] - 0.5).abs() < 1e-12);
+        assert!((frames[3].1[0] - 10.0).abs() < 1e-12, "1 rad in 0.1 s");
+        assert_eq!(frames[7], (vec![1.0, 0.0], vec![0.0, 0.0]));
     }
 
     #[test]

@@ -1,0 +1,214 @@
+//! Tracking markers by region: between full scans of an image, only the
+//! regions around the markers of the last frame are searched.
+//!
+//! A marker moves little between frames, so most of an image's pixels need
+//! no search. Each camera keeps what it found last; the next frame is
+//! searched in a window around each of those markers (grown by half the
+//! marker's side and a motion allowance, overlapping windows merged) with the same
+//! [`Detector`], on the same pixels, so what it finds there it finds as a
+//! full scan would. A search of the whole image at half resolution (a
+//! quarter of the pixels) looks out for markers outside the windows. The
+//! whole image is searched at full resolution every `full_scan_every`
+//! frames, and at once whenever a marker is not found again in its window
+//! or the half-resolution search sees one the windows do not hold: a marker
+//! too small to be seen at half resolution (under about 12 px a side) that
+//! enters the view is found at the next full scan at the latest. The two
+//! cameras' full scans are staggered so that no frame pays for both.
+
+use anyhow::Result;
+use messages::Marker;
+use opencv::core::{Mat, Rect, Size};
+use opencv::imgproc;
+use opencv::prelude::*;
+
+use crate::Detector;
+
+/// How far a marker may move between two frames and still be found in its
+/// window, pixels (besides half its side).
+const MOTION_ALLOWANCE_PX: f64 = 24.0;
+
+/// The whole image is looked over for markers outside the windows at
+/// 1/`PROBE_SCALE` of its resolution.
+const PROBE_SCALE: i32 = 4;
+
+/// Per camera, what was found last and when the last full scan was.
+#[derive(Debug, Clone, Default)]
+struct CameraState {
+    last: Vec<Marker>,
+    since_full: u32,
+}
+
+/// What one image's search did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Search {
+    /// The whole image.
+    Full,
+    /// Only the windows around the last markers.
+    Windows,
+}
+
+/// Region tracking for a stereo stream.
+pub struct RegionTracker {
+    every: u32,
+    cameras: [CameraState; 2],
+    full_scans: u64,
+    window_scans: u64,
+    half: Mat,
+}
+
+impl RegionTracker {
+    /// Full scans every `full_scan_every` frames per camera (1: every
+    /// frame, no tracking); the right camera's half a period after the left's.
+    pub fn new(full_scan_every: u32) -> Self {
+        let every = full_scan_every.max(1);
+        let mut cameras: [CameraState; 2] = Default::default();
+        cameras[1].since_full = every / 2;
+        Self {
+            every,
+            cameras,
+            full_scans: 0,
+            window_scans: 0,
+            half: Mat::default(),
+        }
+    }
+
+    /// Images searched whole, and by windows, so far.
+    pub fn scans(&self) -> (u64, u64) {
+        (self.full_scans, self.window_scans)
+    }
+
+    /// Finds the markers of camera `k`'s image (a `Mat` or a view into one).
+    pub fn detect(
+        &mut self,
+        detector: &mut Detector,
+        k: usize,
+        image: &(impl MatTraitConst + opencv::core::ToInputArray),
+    ) -> Result<(Vec<Marker>, Search)> {
+        let state = &mut self.cameras[k];
+        state.since_full += 1;
+        if state.since_full < self.every
+            && !state.last.is_empty()
+            && let Some(found) = search_windows(detector, image, &state.last)?
+        {
+            let size = Size::new(image.cols() / PROBE_SCALE, image.rows() / PROBE_SCALE);
+            imgproc::resize(image, &mut self.half, size, 0.0, 0.0, imgproc::INTER_AREA)?;
+            let scale = f64::from(PROBE_SCALE);
+            let outside = detector.detect(&self.half)?.into_iter().any(|mut m| {
+                for v in m.corners.iter_mut().chain(m.center.iter_mut()) {
+                    *v = scale * (*v + 0.5) - 0.5;
+                }
+                !found
+                    .iter()
+                    .any(|f| f.id == m.id && f.mirrored == m.mirrored && near(f, &m))
+            });
+            if !outside {
+                state.last.clone_from(&found);
+                self.window_scans += 1;
+                return Ok((found, Search::Windows));
+            }
+        }
+        let found = detector.detect(image)?;
+        state.last.clone_from(&found);
+        state.since_full = 0;
+        self.full_scans += 1;
+        Ok((found, Search::Full))
+    }
+}
+
+/// Searches the windows around `last`; `None` if one of them was not found
+/// again (the caller then scans the whole image).
+fn search_windows(
+    detector: &mut Detector,
+    image: &(impl MatTraitConst + opencv::core::ToInputArray),
+    last: &[Marker],
+) -> Result<Option<Vec<Marker>>> {
+    let (width, height) = (image.cols(), image.rows());
+    let mut windows: Vec<Rect> = Vec::new();
+    for m in last {
+        let mut window = window_around(m, width, height);
+        while let Some(j) = windows.iter().position(|w| (*w & window).area() > 0) {
+            window |= windows.swap_remove(j);
+        }
+        windows.push(window);
+    }
+    let mut found = Vec::new();
+    for window in &windows {
+        let view = Mat::roi(image, *window)?;
+        for mut m in detector.detect(&view)? {
+            let (dx, dy) = (f64::from(window.x), f64::from(window.y));
+            for k in 0..4 {
+                m.corners[2 * k] += dx;
+                m.corners[2 * k + 1] += dy;
+            }
+            m.center[0] += dx;
+            m.center[1] += dy;
+            found.push(m);
+        }
+    }
+    let refound = last.iter().all(|old| {
+        found
+            .iter()
+            .any(|m| m.id == old.id && m.mirrored == old.mirrored && near(m, old))
+    });
+    Ok(refound.then_some(found))
+}
+
+/// The marker's side (its longest edge), pixels.
+fn side(m: &Marker) -> f64 {
+    (0..4)
+        .map(|i| {
+            let j = (i + 1) % 4;
+            (m.corners[2 * i] - m.corners[2 * j]).hypot(m.corners[2 * i + 1] - m.corners[2 * j + 1])
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Whether `m` is where `old` could have moved in a frame.
+fn near(m: &Marker, old: &Marker) -> bool {
+    let d = (m.center[0] - old.center[0]).hypot(m.center[1] - old.center[1]);
+    d <= 0.5 * side(old) + MOTION_ALLOWANCE_PX
+}
+
+/// The window a marker is searched for in the next frame: its bounding box
+/// grown by half its side and the motion allowance, within the image.
+fn window_around(m: &Marker, width: i32, height: i32) -> Rect {
+    let grow = 0.5 * side(m) + MOTION_ALLOWANCE_PX;
+    let xs = [m.corners[0], m.corners[2], m.corners[4], m.corners[6]];
+    let ys = [m.corners[1], m.corners[3], m.corners[5], m.corners[7]];
+    let min = |v: [f64; 4]| v.iter().copied().fold(f64::INFINITY, f64::min);
+    let max = |v: [f64; 4]| v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let x0 = ((min(xs) - grow).floor() as i32).clamp(0, width - 1);
+    let y0 = ((min(ys) - grow).floor() as i32).clamp(0, height - 1);
+    let x1 = ((max(xs) + grow).ceil() as i32).clamp(x0 + 1, width);
+    let y1 = ((max(ys) + grow).ceil() as i32).clamp(y0 + 1, height);
+    Rect::new(x0, y0, x1 - x0, y1 - y0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn marker(id: u32, x: f64, y: f64, s: f64) -> Marker {
+        Marker {
+            id,
+            mirrored: 0,
+            corners: [x, y, x + s, y, x + s, y + s, x, y + s],
+            center: [x + s / 2.0, y + s / 2.0],
+        }
+    }
+
+    #[test]
+    fn windows_grow_by_the_side_and_stay_in_the_image() {
+        let w = window_around(&marker(0, 100.0, 50.0, 40.0), 640, 480);
+        assert_eq!(w, Rect::new(56, 6, 128, 128));
+        let edge = window_around(&marker(0, 620.0, 460.0, 30.0), 640, 480);
+        assert!(edge.x + edge.width <= 640 && edge.y + edge.height <= 480);
+    }
+
+    #[test]
+    fn a_marker_is_near_where_it_was_within_its_side_and_the_allowance() {
+        let old = marker(3, 100.0, 100.0, 40.0);
+        assert!(near(&marker(3, 140.0, 100.0, 40.0), &old));
+        assert!(!near(&marker(3, 150.0, 100.0, 40.0), &old));
+    }
+}
