@@ -109,7 +109,10 @@ fn track(tracker: &mut Tracker, seq: &mut u64, frame: &Frame) -> StereoDetection
 /// How much of the truth a pass found: markers found (id, and the
 /// mirrored flag where the pass gives one; centre within 2 px), of all
 /// drawn, and the median and largest centre error.
-fn recall(what: &str, frames: &[Frame], found: &[[Vec<(u32, Option<bool>, [f64; 2])>; 2]]) {
+/// A pass's finds in one image: id, mirrored (if it tells), centre.
+type Finds = Vec<(u32, Option<bool>, [f64; 2])>;
+
+fn recall(what: &str, frames: &[Frame], found: &[[Finds; 2]]) {
     let (mut drawn, mut errors) = (0, Vec::new());
     for (frame, found) in frames.iter().zip(found) {
         for k in 0..2 {
