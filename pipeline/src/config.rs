@@ -22,6 +22,30 @@ pub enum Source {
     Sim,
 }
 
+/// What the simulated camera's images look like (`camera_proc sim --look`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Look {
+    /// A room, the mirror's frame, the robot; a real camera's blur and noise.
+    #[default]
+    Realistic,
+    /// Cards on a flat grey field, light blur and noise.
+    Clean,
+    /// Cards on a flat grey field, no blur, no noise.
+    Sharp,
+}
+
+impl Look {
+    /// The name `camera_proc` takes.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Look::Realistic => "realistic",
+            Look::Clean => "clean",
+            Look::Sharp => "sharp",
+        }
+    }
+}
+
 /// The run's settings.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -42,6 +66,9 @@ pub struct Config {
     pub source: Source,
     /// Camera frame rate, Hz.
     pub fps: f64,
+    /// What the simulated camera's images look like (default `realistic`).
+    #[serde(default)]
+    pub look: Look,
     /// Move time between poses of the simulated arm (`sim_arm`), ms.
     pub move_ms: u64,
     /// Dwell time at each pose, ms.

@@ -161,6 +161,7 @@ impl Run {
             StageArgs::Camera {
                 mirror,
                 fps: config.fps,
+                look: config.look,
             },
             StageArgs::ArmDriver {
                 rig: rig.clone(),

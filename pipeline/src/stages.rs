@@ -8,6 +8,8 @@ use std::time::Duration;
 use messages::topics::TopicId;
 use mirror_proc::calibrate::Method;
 
+use crate::config::Look;
+
 /// What a stage's exit means, and whether it is started again.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RestartPolicy {
@@ -64,6 +66,8 @@ pub enum StageArgs {
         mirror: usize,
         /// Frame rate, Hz.
         fps: f64,
+        /// What the images look like (`realistic`, `clean`, `sharp`).
+        look: Look,
     },
     /// `replay`: a recording's frames or detections, and its joint states,
     /// back onto the topics, in lockstep with the slowest subscriber.
@@ -202,9 +206,10 @@ impl StageArgs {
                 flag("pace", "lockstep".into());
                 flag("wait-subscribers", wait_subscribers.to_string());
             }
-            StageArgs::Camera { mirror, fps } => {
+            StageArgs::Camera { mirror, fps, look } => {
                 flag("mirror", mirror.to_string());
                 flag("fps", fps.to_string());
+                flag("look", look.as_str().into());
             }
             StageArgs::ArmDriver {
                 rig,
@@ -292,10 +297,11 @@ mod tests {
         let camera = StageArgs::Camera {
             mirror: 2,
             fps: 30.0,
+            look: Look::Realistic,
         };
         assert_eq!(
             camera.argv("p").join(" "),
-            "sim --prefix p --mirror 2 --fps 30"
+            "sim --prefix p --mirror 2 --fps 30 --look realistic"
         );
         let sim_arm = StageArgs::ArmDriver {
             rig: "r.toml".into(),

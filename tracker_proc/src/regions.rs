@@ -135,6 +135,11 @@ fn search_windows(
     for window in &windows {
         let view = Mat::roi(image, *window)?;
         for mut m in detector.detect(&view)? {
+            // A marker at the window's edge may be cut by it: its corners
+            // would not be a full scan's. Search the whole image instead.
+            if !clear_of_edges(&m, *window, width, height) {
+                return Ok(None);
+            }
             let (dx, dy) = (f64::from(window.x), f64::from(window.y));
             for k in 0..4 {
                 m.corners[2 * k] += dx;
@@ -151,6 +156,23 @@ fn search_windows(
             .any(|m| m.id == old.id && m.mirrored == old.mirrored && near(m, old))
     });
     Ok(refound.then_some(found))
+}
+
+/// Pixels a marker found in a window must keep from the window's edges
+/// (those inside the image): what the detector looks at around a marker.
+const EDGE_CLEARANCE_PX: f64 = 8.0;
+
+/// Whether `m` (in window coordinates) keeps clear of the window's edges
+/// that are not the image's.
+fn clear_of_edges(m: &Marker, window: Rect, width: i32, height: i32) -> bool {
+    let xs = [m.corners[0], m.corners[2], m.corners[4], m.corners[6]];
+    let ys = [m.corners[1], m.corners[3], m.corners[5], m.corners[7]];
+    let (w, h) = (f64::from(window.width), f64::from(window.height));
+    let c = EDGE_CLEARANCE_PX;
+    (window.x == 0 || xs.iter().all(|&x| x >= c))
+        && (window.y == 0 || ys.iter().all(|&y| y >= c))
+        && (window.x + window.width == width || xs.iter().all(|&x| x <= w - c))
+        && (window.y + window.height == height || ys.iter().all(|&y| y <= h - c))
 }
 
 /// The marker's side (its longest edge), pixels.
@@ -203,6 +225,36 @@ mod tests {
         assert_eq!(w, Rect::new(56, 6, 128, 128));
         let edge = window_around(&marker(0, 620.0, 460.0, 30.0), 640, 480);
         assert!(edge.x + edge.width <= 640 && edge.y + edge.height <= 480);
+    }
+
+    #[test]
+    fn a_marker_at_a_window_edge_inside_the_image_is_not_clear() {
+        let window = Rect::new(100, 100, 120, 120);
+        assert!(clear_of_edges(
+            &marker(0, 20.0, 20.0, 40.0),
+            window,
+            640,
+            480
+        ));
+        assert!(!clear_of_edges(
+            &marker(0, 3.0, 20.0, 40.0),
+            window,
+            640,
+            480
+        ));
+        assert!(!clear_of_edges(
+            &marker(0, 20.0, 20.0, 96.0),
+            window,
+            640,
+            480
+        ));
+        // At the image's own edge a window edge cuts nothing.
+        assert!(clear_of_edges(
+            &marker(0, 3.0, 20.0, 40.0),
+            Rect::new(0, 100, 120, 120),
+            640,
+            480
+        ));
     }
 
     #[test]
