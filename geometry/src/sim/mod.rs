@@ -305,19 +305,21 @@ pub fn sweep(
     frames
 }
 
+/// Offsets from a card's centre that stand for its extent in any
+/// orientation: the centre and half a side along x and y.
+const CARD_EXTENT: [Vector3<f64>; 5] = [
+    Vector3::new(0.0, 0.0, 0.0),
+    Vector3::new(CARD_HALF_SIDE_MM, 0.0, 0.0),
+    Vector3::new(-CARD_HALF_SIDE_MM, 0.0, 0.0),
+    Vector3::new(0.0, CARD_HALF_SIDE_MM, 0.0),
+    Vector3::new(0.0, -CARD_HALF_SIDE_MM, 0.0),
+];
+
 /// Whether a card of half side [`CARD_HALF_SIDE_MM`] centred at `p` (any
 /// orientation) projects inside the image with [`IMAGE_MARGIN_PX`] to spare,
 /// and, for a virtual point `p` behind `glass`, is seen through the glass.
 fn card_in_view(cam: &Camera, p: &Vector3<f64>, glass: Option<&Mirror>) -> bool {
-    let h = CARD_HALF_SIDE_MM;
-    let offsets = [
-        Vector3::zeros(),
-        Vector3::x() * h,
-        -Vector3::x() * h,
-        Vector3::y() * h,
-        -Vector3::y() * h,
-    ];
-    offsets.iter().all(|o| {
+    CARD_EXTENT.iter().all(|o| {
         let q = p + o;
         cam.depth(&q) > 0.0
             && cam
@@ -334,15 +336,7 @@ fn card_in_view(cam: &Camera, p: &Vector3<f64>, glass: Option<&Mirror>) -> bool 
 fn card_blocks_its_reflection(cam: &Camera, p: &Vector3<f64>, mirror: &Mirror) -> bool {
     let virt = mirror.plane.reflect_point(p);
     let reach = CARD_HALF_SIDE_MM * std::f64::consts::SQRT_2;
-    let h = CARD_HALF_SIDE_MM;
-    let offsets = [
-        Vector3::zeros(),
-        Vector3::x() * h,
-        -Vector3::x() * h,
-        Vector3::y() * h,
-        -Vector3::y() * h,
-    ];
-    offsets.iter().any(|o| {
+    CARD_EXTENT.iter().any(|o| {
         let target = virt + o;
         let (de, dt) = (
             mirror.plane.signed_distance(&cam.center),
