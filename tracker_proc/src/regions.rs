@@ -6,12 +6,14 @@
 //! searched in a window around each of those markers (grown by half the
 //! marker's side and a motion allowance, overlapping windows merged) with the same
 //! [`Detector`], on the same pixels, so what it finds there it finds as a
-//! full scan would. A search of the whole image at half resolution (a
-//! quarter of the pixels) looks out for markers outside the windows. The
+//! full scan would. A search of the whole image at a quarter of its
+//! resolution looks out for markers outside the windows. The
 //! whole image is searched at full resolution every `full_scan_every`
-//! frames, and at once whenever a marker is not found again in its window
-//! or the half-resolution search sees one the windows do not hold: a marker
-//! too small to be seen at half resolution (under about 12 px a side) that
+//! frames, and at once whenever a marker is not found again in its window,
+//! the low-resolution search sees one the windows do not hold, or a marker
+//! seen within the last `full_scan_every` frames is missing (it may come
+//! back anywhere, as the arm's card does after a fast move): a marker too
+//! small for the low-resolution search (under about 24 px a side) that
 //! enters the view is found at the next full scan at the latest. The two
 //! cameras' full scans are staggered so that no frame pays for both.
 
@@ -31,11 +33,42 @@ const MOTION_ALLOWANCE_PX: f64 = 24.0;
 /// 1/`PROBE_SCALE` of its resolution.
 const PROBE_SCALE: i32 = 4;
 
-/// Per camera, what was found last and when the last full scan was.
+/// Per camera, what was found last, what was seen lately (id, mirrored,
+/// frames ago) and when the last full scan was.
 #[derive(Debug, Clone, Default)]
 struct CameraState {
     last: Vec<Marker>,
+    lately: Vec<(u32, u32, u32)>,
     since_full: u32,
+}
+
+impl CameraState {
+    /// Remembers `found` as seen now; forgets what was not seen for `every` frames.
+    fn saw(&mut self, found: &[Marker], every: u32) {
+        for entry in &mut self.lately {
+            entry.2 += 1;
+        }
+        self.lately.retain(|e| e.2 < every);
+        for m in found {
+            match self
+                .lately
+                .iter_mut()
+                .find(|e| e.0 == m.id && e.1 == m.mirrored)
+            {
+                Some(e) => e.2 = 0,
+                None => self.lately.push((m.id, m.mirrored, 0)),
+            }
+        }
+        self.last = found.to_vec();
+    }
+
+    /// Whether a marker seen lately is missing from the last frame (it may
+    /// be back anywhere: only a full scan finds it at once).
+    fn missing_one(&self) -> bool {
+        self.lately
+            .iter()
+            .any(|e| !self.last.iter().any(|m| m.id == e.0 && m.mirrored == e.1))
+    }
 }
 
 /// What one image's search did.
@@ -88,6 +121,7 @@ impl RegionTracker {
         state.since_full += 1;
         if state.since_full < self.every
             && !state.last.is_empty()
+            && !state.missing_one()
             && let Some(found) = search_windows(detector, image, &state.last)?
         {
             let size = Size::new(image.cols() / PROBE_SCALE, image.rows() / PROBE_SCALE);
@@ -102,13 +136,13 @@ impl RegionTracker {
                     .any(|f| f.id == m.id && f.mirrored == m.mirrored && near(f, &m))
             });
             if !outside {
-                state.last.clone_from(&found);
+                state.saw(&found, self.every);
                 self.window_scans += 1;
                 return Ok((found, Search::Windows));
             }
         }
         let found = detector.detect(image)?;
-        state.last.clone_from(&found);
+        state.saw(&found, self.every);
         state.since_full = 0;
         self.full_scans += 1;
         Ok((found, Search::Full))
@@ -255,6 +289,21 @@ mod tests {
             640,
             480
         ));
+    }
+
+    #[test]
+    fn a_marker_seen_lately_and_missing_now_is_missed_until_forgotten() {
+        let mut state = CameraState::default();
+        state.saw(
+            &[marker(0, 10.0, 10.0, 40.0), marker(7, 200.0, 10.0, 40.0)],
+            3,
+        );
+        assert!(!state.missing_one());
+        state.saw(&[marker(7, 200.0, 10.0, 40.0)], 3);
+        assert!(state.missing_one(), "marker 0 went missing");
+        state.saw(&[marker(7, 200.0, 10.0, 40.0)], 3);
+        state.saw(&[marker(7, 200.0, 10.0, 40.0)], 3);
+        assert!(!state.missing_one(), "forgotten after 3 frames");
     }
 
     #[test]
