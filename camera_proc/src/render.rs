@@ -334,13 +334,16 @@ impl Renderer {
         arm_faces: Facing,
     ) -> Vec<(u32, Vector3<f64>, Facing)> {
         std::iter::once((self.world.arm_marker, *end_effector, arm_faces))
-            .chain(
-                self.world
-                    .fixed
-                    .iter()
-                    .map(|f| (f.id, f.center, Facing::Mirror)),
-            )
+            .chain(self.fixed_cards())
             .collect()
+    }
+
+    /// The cards fixed in the world, all turned to the mirror.
+    fn fixed_cards(&self) -> impl Iterator<Item = (u32, Vector3<f64>, Facing)> + '_ {
+        self.world
+            .fixed
+            .iter()
+            .map(|f| (f.id, f.center, Facing::Mirror))
     }
 
     /// How many poses to draw the arm at: about one per 1.5 px its card
@@ -381,12 +384,7 @@ impl Renderer {
                 arm.end_effector(q, offsets)?,
                 arm_faces,
             )],
-            None => self
-                .world
-                .fixed
-                .iter()
-                .map(|f| (f.id, f.center, Facing::Mirror))
-                .collect(),
+            None => self.fixed_cards().collect(),
         };
         let look = &self.look;
         let lit = |p: &Vector3<f64>, n: &Vector3<f64>| {

@@ -9,7 +9,7 @@
 
 use anyhow::Result;
 use geometry::Camera;
-use geometry::sim::{Mirror, ROBOT_BODY_MM};
+use geometry::sim::{Mirror, ROBOT_BODY_MM, line_through_box};
 use nalgebra::{Vector2, Vector3};
 use opencv::core::{self, Mat, Point, Scalar};
 use opencv::prelude::*;
@@ -184,23 +184,8 @@ fn enter_box(
     b: &[[f64; 2]; 3],
     t_min: f64,
 ) -> Option<(f64, Vector3<f64>)> {
-    let (mut t0, mut t1, mut axis) = (f64::NEG_INFINITY, f64::INFINITY, 0);
-    for k in 0..3 {
-        if d[k].abs() < 1e-12 {
-            if o[k] < b[k][0] || o[k] > b[k][1] {
-                return None;
-            }
-            continue;
-        }
-        let (a, c) = ((b[k][0] - o[k]) / d[k], (b[k][1] - o[k]) / d[k]);
-        let (near, far) = if a < c { (a, c) } else { (c, a) };
-        if near > t0 {
-            t0 = near;
-            axis = k;
-        }
-        t1 = t1.min(far);
-    }
-    if t0 > t1 || t0 <= t_min {
+    let (t0, _, axis) = line_through_box(o, d, b)?;
+    if t0 <= t_min {
         return None;
     }
     let mut n = Vector3::zeros();

@@ -337,7 +337,8 @@ fn ratios(_: &mut Criterion) {
 }
 
 fn bench(c: &mut Criterion) {
-    let frames: Vec<[Mat; 2]> = frames(&sequence()).into_iter().map(|f| f.images).collect();
+    let sequence = frames(&sequence());
+    let frames: Vec<&[Mat; 2]> = sequence.iter().map(|f| &f.images).collect();
     let mut group = c.benchmark_group("detect_stereo_frame");
     let stock = StockPass::new().unwrap();
     let mut i = 0;
@@ -366,28 +367,13 @@ fn bench(c: &mut Criterion) {
         });
     }
     // The whole step on the same frames, each as one stereo payload.
-    let payloads: Vec<Vec<u8>> = frames
-        .iter()
-        .map(|[l, r]| [l.data_bytes().unwrap(), r.data_bytes().unwrap()].concat())
-        .collect();
     let mut tracker = Tracker::new(true).unwrap();
     let mut seq = 0u64;
     group.bench_function("ours: the whole tracker step", |b| {
         b.iter(|| {
-            let header = FrameHeader {
-                seq,
-                stamp_ns: seq as i64 + 1,
-                published_ns: 0,
-                width: 640,
-                height: 480,
-                stride: 640,
-                encoding: Encoding::Mono8 as u32,
-            };
-            let payload = &payloads[seq as usize % payloads.len()];
-            seq += 1;
-            let tracked = tracker.step(&header, payload).unwrap();
-            assert!(matches!(tracked, Tracked::Detections(_)));
-            black_box(tracked)
+            let frame = &sequence[seq as usize % sequence.len()];
+            let detections = track(&mut tracker, &mut seq, frame);
+            black_box(detections)
         })
     });
     group.finish();

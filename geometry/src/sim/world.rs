@@ -27,22 +27,36 @@ pub const ROBOT_BODY_MM: [[[f64; 2]; 3]; 3] = [
     [[-90.0, 90.0], [110.0, 430.0], [-70.0, 50.0]],
 ];
 
-/// Whether the segment from `a` to `b` passes through the box `extent`.
-pub fn segment_meets_box(a: &Vector3<f64>, b: &Vector3<f64>, extent: &[[f64; 2]; 3]) -> bool {
-    let d = b - a;
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+/// Where the line `o + t d` is inside the box `extent`: the entry and exit
+/// parameters `t` and the axis of the entry face (the slab test), or `None`
+/// if it misses the box.
+pub fn line_through_box(
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    extent: &[[f64; 2]; 3],
+) -> Option<(f64, f64, usize)> {
+    let (mut t0, mut t1, mut axis) = (f64::NEG_INFINITY, f64::INFINITY, 0);
     for k in 0..3 {
         if d[k].abs() < 1e-12 {
-            if a[k] < extent[k][0] || a[k] > extent[k][1] {
-                return false;
+            if o[k] < extent[k][0] || o[k] > extent[k][1] {
+                return None;
             }
             continue;
         }
-        let (p, q) = ((extent[k][0] - a[k]) / d[k], (extent[k][1] - a[k]) / d[k]);
-        t0 = t0.max(p.min(q));
-        t1 = t1.min(p.max(q));
+        let (p, q) = ((extent[k][0] - o[k]) / d[k], (extent[k][1] - o[k]) / d[k]);
+        let (near, far) = if p < q { (p, q) } else { (q, p) };
+        if near > t0 {
+            t0 = near;
+            axis = k;
+        }
+        t1 = t1.min(far);
     }
-    t0 <= t1
+    (t0 <= t1).then_some((t0, t1, axis))
+}
+
+/// Whether the segment from `a` to `b` passes through the box `extent`.
+pub fn segment_meets_box(a: &Vector3<f64>, b: &Vector3<f64>, extent: &[[f64; 2]; 3]) -> bool {
+    line_through_box(a, &(b - a), extent).is_some_and(|(t0, t1, _)| t0.max(0.0) <= t1.min(1.0))
 }
 
 /// A marked object fixed in the world (not on the arm).
