@@ -205,6 +205,7 @@ impl Renderer {
         let fixed = [renderer.items(None, Facing::Mirror)?];
         for k in 0..2 {
             let mut image = std::mem::take(&mut renderer.views[k].image);
+            renderer.shrink_cards(k, &fixed)?;
             renderer.draw_over(k, &fixed, &mut image)?;
             renderer.views[k].image = image;
         }
@@ -297,7 +298,7 @@ impl Renderer {
             items_per_pose.push(self.items(Some(pose), arm_faces)?);
         }
         let code_side = MARKER_SIZE_MM;
-        for (k, out) in [left, right].into_iter().enumerate() {
+        for k in 0..2 {
             let cam = self.world.rig.cameras[k];
             // Truth: cards whose code the camera sees whole (through the glass if reflected).
             for (id, center, faces) in self.cards_at(&end_effector, arm_faces) {
@@ -319,11 +320,22 @@ impl Renderer {
                     truth.markers[k].push((id, code.mirrored, px));
                 }
             }
-            self.draw_view(k, &items_per_pose, out)?;
-            let width = cam.intrinsics.width as usize;
-            self.noise
-                .apply(out, width, seq.wrapping_mul(2).wrapping_add(k as u64))?;
+            self.shrink_cards(k, &items_per_pose)?;
         }
+        // The two views on two threads: the right one's on a scoped thread.
+        let this = &*self;
+        let draw = |k: usize, out: &mut [u8]| -> Result<()> {
+            this.draw_view(k, &items_per_pose, out)?;
+            let width = this.world.rig.cameras[k].intrinsics.width as usize;
+            this.noise
+                .apply(out, width, seq.wrapping_mul(2).wrapping_add(k as u64))
+        };
+        let (l, r) = std::thread::scope(|s| {
+            let r = s.spawn(|| draw(1, right));
+            (draw(0, left), r.join())
+        });
+        l?;
+        r.map_err(|_| anyhow::anyhow!("drawing the right view panicked"))??;
         Ok(truth)
     }
 
@@ -485,13 +497,13 @@ impl Renderer {
     /// Draws one camera's frame: the still scene, then what is seen in the
     /// glass, then what is seen directly; each of those far to near, links
     /// and card backs before cards (a card is held at the wrist).
-    fn draw_view(&mut self, k: usize, items_per_pose: &[Vec<Item>], out: &mut [u8]) -> Result<()> {
+    fn draw_view(&self, k: usize, items_per_pose: &[Vec<Item>], out: &mut [u8]) -> Result<()> {
         out.copy_from_slice(&self.views[k].image);
         self.draw_over(k, items_per_pose, out)
     }
 
     /// Draws items over what `out` shows: see [`Renderer::draw_view`].
-    fn draw_over(&mut self, k: usize, items_per_pose: &[Vec<Item>], out: &mut [u8]) -> Result<()> {
+    fn draw_over(&self, k: usize, items_per_pose: &[Vec<Item>], out: &mut [u8]) -> Result<()> {
         let cam = self.world.rig.cameras[k];
         let middle = &items_per_pose[items_per_pose.len() / 2];
         for mirrored in [true, false] {
@@ -641,7 +653,7 @@ impl Renderer {
     /// Draws a card (or its ghost) into a region's light (premultiplied
     /// DN) and coverage, sampling its texture through each pixel's ray.
     fn draw_card(
-        &mut self,
+        &self,
         k: usize,
         item: &Item,
         bbox: [f64; 4],
@@ -661,8 +673,11 @@ impl Renderer {
         if x1 <= x0 || y1 <= y0 {
             return Ok(());
         }
-        let side = self.shrink_card(id, &cam, &corners)?;
-        let texture = &self.shrunk[&(id, side)];
+        let side = self.card_side(id, &cam, &corners)?;
+        let texture = self
+            .shrunk
+            .get(&(id, side))
+            .context("a card's texture drawn before it was shrunk")?;
         let h = texel_from_normalized(&cam, &corners, texture.width, texture.height)?;
         let view = &self.views[k];
         let width = cam.intrinsics.width as usize;
@@ -694,22 +709,26 @@ impl Renderer {
         Ok(())
     }
 
+    /// Caches the textures camera `k` draws the cards of `items_per_pose`
+    /// with, so that drawing needs no cache updates (and the two views
+    /// draw at once).
+    fn shrink_cards(&mut self, k: usize, items_per_pose: &[Vec<Item>]) -> Result<()> {
+        let cam = self.world.rig.cameras[k];
+        for item in items_per_pose.iter().flatten() {
+            if let Shape::Card { id, corners } = item.shape {
+                self.shrink_card(id, &cam, &corners)?;
+            }
+        }
+        Ok(())
+    }
+
     /// Caches the card's texture shrunk (area averaging) to about its size
     /// on screen, as bilinear sampling of a much larger texture aliases the
     /// edges; returns the side it has in the cache.
     fn shrink_card(&mut self, id: u32, cam: &Camera, corners: &[Vector3<f64>; 4]) -> Result<i32> {
+        let side = self.card_side(id, cam, corners)?;
         let card = self.cards.get(&id).context("texture per id")?;
-        let px: Vec<Vector2<f64>> = corners.iter().filter_map(|c| cam.project(c).ok()).collect();
-        let on_screen = (0..px.len())
-            .map(|i| (px[i] - px[(i + 1) % px.len()]).norm())
-            .fold(0.0, f64::max);
         let full = card.cols();
-        let scale = (on_screen / f64::from(full)).min(1.0);
-        let side = if scale < 0.9 {
-            ((f64::from(full) * scale).round() as i32).max(8)
-        } else {
-            full
-        };
         if !self.shrunk.contains_key(&(id, side)) {
             let mut small = Mat::default();
             let source = if side < full {
@@ -729,6 +748,23 @@ impl Renderer {
             self.shrunk.insert((id, side), picture);
         }
         Ok(side)
+    }
+
+    /// The side of the card's texture drawn for these corners: about the
+    /// card's size on screen, the full texture when near it.
+    fn card_side(&self, id: u32, cam: &Camera, corners: &[Vector3<f64>; 4]) -> Result<i32> {
+        let card = self.cards.get(&id).context("texture per id")?;
+        let px: Vec<Vector2<f64>> = corners.iter().filter_map(|c| cam.project(c).ok()).collect();
+        let on_screen = (0..px.len())
+            .map(|i| (px[i] - px[(i + 1) % px.len()]).norm())
+            .fold(0.0, f64::max);
+        let full = card.cols();
+        let scale = (on_screen / f64::from(full)).min(1.0);
+        Ok(if scale < 0.9 {
+            ((f64::from(full) * scale).round() as i32).max(8)
+        } else {
+            full
+        })
     }
 
     /// Writes a region: what was drawn over what the frame shows there,

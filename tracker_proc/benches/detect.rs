@@ -9,13 +9,16 @@
 //! The ratios print first: the passes timed frame by frame, interleaved
 //! (the order alternating each frame) in rounds over the same frames, so
 //! that the machine's load changes both alike; each round gives a ratio and
-//! the spread over rounds says how far to trust it. The renderer is timed
+//! the spread over rounds says how far to trust it. Both are timed by the
+//! clock and by the CPU time they take: the stock pass runs its threshold
+//! scales on OpenCV's threads, ours runs the two images on two threads. The renderer is timed
 //! against the tracker the same way. Then what each pass finds of the
 //! renderer's truth, and how far its centres are from it.
 //! Run: `cargo bench -p tracker_proc --bench detect`.
 
 use camera_proc::render::RenderTruth;
 use camera_proc::render::Renderer;
+use cpu_time::ProcessTime;
 use criterion::{Criterion, criterion_group, criterion_main};
 use geometry::sim::{Counts, generate, nico_noise, nico_scene, sweep};
 use geometry::sim::{Facing, SimWorld};
@@ -142,58 +145,72 @@ fn recall(what: &str, frames: &[Frame], found: &[[Finds; 2]]) {
     );
 }
 
-/// Prints the median and range of the per-round ratios `a / b` of
-/// [`interleaved`]'s `times` over `n` frames, and the middle round's times
-/// per frame.
-fn report(what: &str, names: [&str; 2], times: &[(Duration, Duration)], n: usize) {
-    let mut ratios: Vec<f64> = times
-        .iter()
-        .map(|(a, b)| a.as_secs_f64() / b.as_secs_f64())
-        .collect();
+/// One round's total times of two passes: wall clock, and the process's
+/// CPU time (all its threads: both passes run on more than one).
+#[derive(Debug, Clone, Copy, Default)]
+struct Round {
+    wall: [Duration; 2],
+    cpu: [Duration; 2],
+}
+
+/// The median and range of per-round ratios.
+fn spread(mut ratios: Vec<f64>) -> (f64, f64, f64) {
     ratios.sort_by(f64::total_cmp);
-    let (median, lo, hi) = (
+    (
         ratios[ratios.len() / 2],
         ratios[0],
         ratios[ratios.len() - 1],
-    );
+    )
+}
+
+/// Prints the median and range of the per-round ratios `a / b` of
+/// [`interleaved`]'s rounds over `n` frames, in wall-clock and in CPU time,
+/// and the middle round's times per frame.
+fn report(what: &str, names: [&str; 2], rounds: &[Round], n: usize) {
+    let ratio = |t: [Duration; 2]| t[0].as_secs_f64() / t[1].as_secs_f64();
+    let (median, lo, hi) = spread(rounds.iter().map(|r| ratio(r.wall)).collect());
+    let (cpu, cpu_lo, cpu_hi) = spread(rounds.iter().map(|r| ratio(r.cpu)).collect());
     let per_frame = |d: Duration| d.as_secs_f64() * 1e3 / n as f64;
-    let (a, b) = times[times.len() / 2];
+    let middle = rounds[rounds.len() / 2];
     println!(
-        "ratio {what} per stereo frame: {median:.3} (range {lo:.3} to {hi:.3} over {} rounds of {n} frames; {} {:.2} ms, {} {:.2} ms)",
-        times.len(),
+        "ratio {what} per stereo frame: {median:.3} (range {lo:.3} to {hi:.3} over {} rounds of {n} frames; {} {:.2} ms, {} {:.2} ms); CPU time {cpu:.3} ({cpu_lo:.3} to {cpu_hi:.3}; {:.2} and {:.2} ms)",
+        rounds.len(),
         names[0],
-        per_frame(a),
+        per_frame(middle.wall[0]),
         names[1],
-        per_frame(b)
+        per_frame(middle.wall[1]),
+        per_frame(middle.cpu[0]),
+        per_frame(middle.cpu[1]),
     );
 }
 
 /// Times `a` and `b` on each of `n` items in turn, alternating which goes
-/// first, for `rounds` rounds; returns per-round total times (a, b).
+/// first, for `rounds` rounds; returns per-round totals.
 fn interleaved(
     rounds: usize,
     n: usize,
     mut a: impl FnMut(usize),
     mut b: impl FnMut(usize),
-) -> Vec<(Duration, Duration)> {
+) -> Vec<Round> {
     (0..rounds)
         .map(|round| {
-            let (mut ta, mut tb) = (Duration::ZERO, Duration::ZERO);
+            let mut totals = Round::default();
             for i in 0..n {
-                let time = |f: &mut dyn FnMut(usize), total: &mut Duration| {
-                    let t = Instant::now();
+                let mut time = |f: &mut dyn FnMut(usize), which: usize| {
+                    let (wall, cpu) = (Instant::now(), ProcessTime::now());
                     f(i);
-                    *total += t.elapsed();
+                    totals.cpu[which] += cpu.elapsed();
+                    totals.wall[which] += wall.elapsed();
                 };
                 if (i + round) % 2 == 0 {
-                    time(&mut a, &mut ta);
-                    time(&mut b, &mut tb);
+                    time(&mut a, 0);
+                    time(&mut b, 1);
                 } else {
-                    time(&mut b, &mut tb);
-                    time(&mut a, &mut ta);
+                    time(&mut b, 1);
+                    time(&mut a, 0);
                 }
             }
-            (ta, tb)
+            totals
         })
         .collect()
 }

@@ -16,7 +16,7 @@ use anyhow::{Context, Result, bail};
 use opencv::core::Mat;
 use opencv::imgcodecs;
 use tracker_proc::real_set::{Found, RealSet, Report, readings_near, stock_pass, table};
-use tracker_proc::{Checks, Correction, Detector, Options, Refine, StockPass};
+use tracker_proc::{Checks, Correction, Detector, Options, Refine, StockPass, ThresholdWindows};
 
 fn main() -> Result<()> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
@@ -105,6 +105,53 @@ fn main() -> Result<()> {
                     min_margin: 0.0,
                     ..ours.checks
                 },
+                ..ours
+            },
+        ),
+        (
+            "  ours, threshold windows 3 and 23 px",
+            Options {
+                threshold_windows: ThresholdWindows {
+                    min: 3,
+                    max: 23,
+                    step: 20,
+                },
+                ..ours
+            },
+        ),
+        (
+            "  ours, threshold windows 3 and 13 px",
+            Options {
+                threshold_windows: ThresholdWindows {
+                    min: 3,
+                    max: 13,
+                    step: 10,
+                },
+                ..ours
+            },
+        ),
+        (
+            "  ours, threshold windows 7 and 17 px",
+            Options {
+                threshold_windows: ThresholdWindows {
+                    min: 7,
+                    max: 17,
+                    step: 10,
+                },
+                ..ours
+            },
+        ),
+        (
+            "  ours, threshold window 13 px",
+            Options {
+                threshold_windows: ThresholdWindows::single(13),
+                ..ours
+            },
+        ),
+        (
+            "  ours, threshold window 7 px",
+            Options {
+                threshold_windows: ThresholdWindows::single(7),
                 ..ours
             },
         ),

@@ -57,6 +57,44 @@ pub struct Options {
     pub refine: Refine,
     /// What a candidate must look like to be read as a marker.
     pub checks: Checks,
+    /// The adaptive threshold's window sizes, pixels: OpenCV thresholds the
+    /// image once per size and finds candidates in each.
+    pub threshold_windows: ThresholdWindows,
+}
+
+/// Window sizes of the adaptive threshold: `min`, `min + step`, ... up to
+/// `max` (odd, pixels), as OpenCV's `adaptiveThreshWinSize*` parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ThresholdWindows {
+    /// The smallest window.
+    pub min: i32,
+    /// The largest window.
+    pub max: i32,
+    /// The step between sizes.
+    pub step: i32,
+}
+
+impl ThresholdWindows {
+    /// OpenCV's defaults: 3, 13 and 23 px.
+    pub const STOCK: Self = Self {
+        min: 3,
+        max: 23,
+        step: 10,
+    };
+
+    /// One size only.
+    pub const fn single(size: i32) -> Self {
+        Self {
+            min: size,
+            max: size,
+            step: 10,
+        }
+    }
+
+    /// How many thresholded images a pass makes.
+    pub fn count(&self) -> i32 {
+        (self.max - self.min) / self.step.max(1) + 1
+    }
 }
 
 /// Corner placement.
@@ -81,6 +119,7 @@ impl Options {
             reread_refined: true,
             refine: Refine::Lines,
             checks: Checks::default(),
+            threshold_windows: ThresholdWindows::STOCK,
         }
     }
 }
@@ -116,6 +155,10 @@ impl Detector {
         if options.keep_close_candidates {
             params.set_min_marker_distance_rate(0.0);
         }
+        let windows = options.threshold_windows;
+        params.set_adaptive_thresh_win_size_min(windows.min);
+        params.set_adaptive_thresh_win_size_max(windows.max);
+        params.set_adaptive_thresh_win_size_step(windows.step);
         Ok(Self {
             book: CodeBook::new(options.mirrored, options.correction)?,
             options,
@@ -145,6 +188,25 @@ impl Detector {
         } else {
             self.detect_grey(image)
         }
+    }
+
+    /// Finds the markers at least `min_side` pixels a side (perimeter at
+    /// least four times that) of an image or a window into one: smaller
+    /// outlines are not even read. [`Detector::detect`] takes OpenCV's
+    /// default instead, a perimeter of 3% of the image's larger dimension,
+    /// which in a small window lets through specks by the hundred.
+    pub fn detect_at_least<M: MatTraitConst + core::ToInputArray>(
+        &mut self,
+        image: &M,
+        min_side: f64,
+    ) -> Result<Vec<Marker>> {
+        let larger = f64::from(image.cols().max(image.rows()).max(1));
+        self.params
+            .set_min_marker_perimeter_rate(4.0 * min_side / larger);
+        let found = self.detect(image);
+        self.params
+            .set_min_marker_perimeter_rate(STOCK_MIN_PERIMETER_RATE);
+        found
     }
 
     /// Every candidate quadrilateral of a grey image (OpenCV's accepted ones
@@ -317,6 +379,10 @@ fn opencv_pass(
     .context("ArUco detection")?;
     Ok((corners, ids, rejected))
 }
+
+/// OpenCV's default smallest candidate perimeter, as a fraction of the
+/// image's larger dimension.
+const STOCK_MIN_PERIMETER_RATE: f64 = 0.03;
 
 /// Markers up to this side (pixels) get corners from edge lines; larger
 /// ones from `cornerSubPix`, whose 5 px window then stays well inside the

@@ -10,12 +10,13 @@
 //! resolution looks out for markers outside the windows. The
 //! whole image is searched at full resolution every `full_scan_every`
 //! frames, and at once whenever a marker is not found again in its window,
-//! the low-resolution search sees one the windows do not hold, or a marker
-//! seen within the last `full_scan_every` frames is missing (it may come
-//! back anywhere, as the arm's card does after a fast move): a marker too
-//! small for the low-resolution search (under about 24 px a side) that
-//! enters the view is found at the next full scan at the latest. The two
-//! cameras' full scans are staggered so that no frame pays for both.
+//! or the low-resolution search sees one the windows do not hold. While a
+//! marker seen within the last `full_scan_every` frames is missing (it may
+//! come back anywhere, as the arm's card does after a fast move), or none
+//! is known, that search looks at half resolution instead of a quarter. A
+//! marker too small for it (under about 24 px a side, 12 px when wary)
+//! that enters the view is found at the next full scan at the latest. The
+//! two cameras' full scans are staggered so that no frame pays for both.
 
 use anyhow::Result;
 use messages::Marker;
@@ -30,8 +31,16 @@ use crate::Detector;
 const MOTION_ALLOWANCE_PX: f64 = 24.0;
 
 /// The whole image is looked over for markers outside the windows at
-/// 1/`PROBE_SCALE` of its resolution.
+/// 1/`PROBE_SCALE` of its resolution: markers of about 24 px a side and up.
 const PROBE_SCALE: i32 = 4;
+
+/// ... and at 1/`WARY_PROBE_SCALE` while a marker seen lately is missing or
+/// none is known: markers of about 12 px a side and up.
+const WARY_PROBE_SCALE: i32 = 2;
+
+/// The smallest side of a marker read in the low-resolution search, in
+/// its pixels: the reading's own least ([`crate::Checks::min_side`]).
+const PROBE_MIN_SIDE_PX: f64 = 6.0;
 
 /// Per camera, what was found last, what was seen lately (id, mirrored,
 /// frames ago) and when the last full scan was.
@@ -80,28 +89,31 @@ pub enum Search {
     Windows,
 }
 
-/// Region tracking for a stereo stream.
+/// Region tracking for one camera's stream.
 pub struct RegionTracker {
     every: u32,
-    cameras: [CameraState; 2],
+    state: CameraState,
     full_scans: u64,
     window_scans: u64,
-    half: Mat,
+    small: Mat,
 }
 
 impl RegionTracker {
-    /// Full scans every `full_scan_every` frames per camera (1: every
-    /// frame, no tracking); the right camera's half a period after the left's.
-    pub fn new(full_scan_every: u32) -> Self {
+    /// Full scans every `full_scan_every` frames (1: every frame, no
+    /// tracking), the first after `full_scan_every - phase` frames (a stereo
+    /// pair's second camera starts half a period in, so that the two
+    /// cameras' full scans fall on different frames).
+    pub fn new(full_scan_every: u32, phase: u32) -> Self {
         let every = full_scan_every.max(1);
-        let mut cameras: [CameraState; 2] = Default::default();
-        cameras[1].since_full = every / 2;
         Self {
             every,
-            cameras,
+            state: CameraState {
+                since_full: phase % every,
+                ..Default::default()
+            },
             full_scans: 0,
             window_scans: 0,
-            half: Mat::default(),
+            small: Mat::default(),
         }
     }
 
@@ -110,36 +122,25 @@ impl RegionTracker {
         (self.full_scans, self.window_scans)
     }
 
-    /// Finds the markers of camera `k`'s image (a `Mat` or a view into one).
+    /// Finds the markers of the next image (a `Mat` or a view into one).
     pub fn detect(
         &mut self,
         detector: &mut Detector,
-        k: usize,
         image: &(impl MatTraitConst + opencv::core::ToInputArray),
     ) -> Result<(Vec<Marker>, Search)> {
-        let state = &mut self.cameras[k];
+        let state = &mut self.state;
         state.since_full += 1;
+        // With a marker missing, or none known, the look-out is sharper: a
+        // marker back from a fast move, blurred or small, must be seen.
+        let wary = state.last.is_empty() || state.missing_one();
+        let probe_scale = if wary { WARY_PROBE_SCALE } else { PROBE_SCALE };
         if state.since_full < self.every
-            && !state.last.is_empty()
-            && !state.missing_one()
             && let Some(found) = search_windows(detector, image, &state.last)?
+            && !seen_outside(detector, image, &found, probe_scale, &mut self.small)?
         {
-            let size = Size::new(image.cols() / PROBE_SCALE, image.rows() / PROBE_SCALE);
-            imgproc::resize(image, &mut self.half, size, 0.0, 0.0, imgproc::INTER_AREA)?;
-            let scale = f64::from(PROBE_SCALE);
-            let outside = detector.detect(&self.half)?.into_iter().any(|mut m| {
-                for v in m.corners.iter_mut().chain(m.center.iter_mut()) {
-                    *v = scale * (*v + 0.5) - 0.5;
-                }
-                !found
-                    .iter()
-                    .any(|f| f.id == m.id && f.mirrored == m.mirrored && near(f, &m))
-            });
-            if !outside {
-                state.saw(&found, self.every);
-                self.window_scans += 1;
-                return Ok((found, Search::Windows));
-            }
+            state.saw(&found, self.every);
+            self.window_scans += 1;
+            return Ok((found, Search::Windows));
         }
         let found = detector.detect(image)?;
         state.saw(&found, self.every);
@@ -147,6 +148,33 @@ impl RegionTracker {
         self.full_scans += 1;
         Ok((found, Search::Full))
     }
+}
+
+/// Whether a search of the whole image at 1/`scale` of its resolution sees
+/// a marker that is not among `found`.
+fn seen_outside(
+    detector: &mut Detector,
+    image: &(impl MatTraitConst + opencv::core::ToInputArray),
+    found: &[Marker],
+    scale: i32,
+    small: &mut Mat,
+) -> Result<bool> {
+    let size = Size::new(image.cols() / scale, image.rows() / scale);
+    imgproc::resize(image, small, size, 0.0, 0.0, imgproc::INTER_AREA)?;
+    let s = f64::from(scale);
+    // Markers under PROBE_MIN_SIDE_PX (at this scale) the reading refuses
+    // anyway: not even looked at.
+    Ok(detector
+        .detect_at_least(small, PROBE_MIN_SIDE_PX)?
+        .into_iter()
+        .any(|mut m| {
+            for v in m.corners.iter_mut().chain(m.center.iter_mut()) {
+                *v = s * (*v + 0.5) - 0.5;
+            }
+            !found
+                .iter()
+                .any(|f| f.id == m.id && f.mirrored == m.mirrored && near(f, &m))
+        }))
 }
 
 /// Searches the windows around `last`; `None` if one of them was not found
@@ -157,21 +185,25 @@ fn search_windows(
     last: &[Marker],
 ) -> Result<Option<Vec<Marker>>> {
     let (width, height) = (image.cols(), image.rows());
-    let mut windows: Vec<Rect> = Vec::new();
+    // Each window with the smallest side searched for in it: half the
+    // smallest of its markers' (none shrinks by half in a frame).
+    let mut windows: Vec<(Rect, f64)> = Vec::new();
     for m in last {
-        let mut window = window_around(m, width, height);
-        while let Some(j) = windows.iter().position(|w| (*w & window).area() > 0) {
-            window |= windows.swap_remove(j);
+        let (mut window, mut min_side) = (window_around(m, width, height), 0.5 * shortest(m));
+        while let Some(j) = windows.iter().position(|w| (w.0 & window).area() > 0) {
+            let (other, other_side) = windows.swap_remove(j);
+            window |= other;
+            min_side = min_side.min(other_side);
         }
-        windows.push(window);
+        windows.push((window, min_side));
     }
     let mut found = Vec::new();
-    for window in &windows {
-        let view = Mat::roi(image, *window)?;
-        for mut m in detector.detect(&view)? {
+    for &(window, min_side) in &windows {
+        let view = Mat::roi(image, window)?;
+        for mut m in detector.detect_at_least(&view, min_side)? {
             // A marker at the window's edge may be cut by it: its corners
             // would not be a full scan's. Search the whole image instead.
-            if !clear_of_edges(&m, *window, width, height) {
+            if !clear_of_edges(&m, window, width, height) {
                 return Ok(None);
             }
             let (dx, dy) = (f64::from(window.x), f64::from(window.y));
@@ -211,12 +243,20 @@ fn clear_of_edges(m: &Marker, window: Rect, width: i32, height: i32) -> bool {
 
 /// The marker's side (its longest edge), pixels.
 fn side(m: &Marker) -> f64 {
-    (0..4)
-        .map(|i| {
-            let j = (i + 1) % 4;
-            (m.corners[2 * i] - m.corners[2 * j]).hypot(m.corners[2 * i + 1] - m.corners[2 * j + 1])
-        })
-        .fold(0.0, f64::max)
+    edges(m).fold(0.0, f64::max)
+}
+
+/// The marker's shortest edge, pixels.
+fn shortest(m: &Marker) -> f64 {
+    edges(m).fold(f64::INFINITY, f64::min)
+}
+
+/// The lengths of the marker's four edges, pixels.
+fn edges(m: &Marker) -> impl Iterator<Item = f64> + '_ {
+    (0..4).map(|i| {
+        let j = (i + 1) % 4;
+        (m.corners[2 * i] - m.corners[2 * j]).hypot(m.corners[2 * i + 1] - m.corners[2 * j + 1])
+    })
 }
 
 /// Whether `m` is where `old` could have moved in a frame.

@@ -26,11 +26,35 @@ pub enum Tracked {
     Rejected(String),
 }
 
-/// The tracker stage's state: the detector, the stream's stamp order and
-/// sequence, and its counters.
-pub struct Tracker {
+/// One camera's detector and region tracking.
+struct Camera {
     detector: Detector,
     regions: RegionTracker,
+}
+
+impl Camera {
+    /// The markers of one image of a frame, read in place through a `Mat`
+    /// header over the shared-memory pixels: no copy.
+    fn track(&mut self, header: &FrameHeader, image: &[u8]) -> Result<CameraMarkers> {
+        let channels = header.bytes_per_pixel().unwrap_or(1) as i32;
+        let flat = Mat::new_rows_cols_with_data(header.height as i32, header.stride as i32, image)?;
+        let view = flat.reshape(channels, header.height as i32)?;
+        let roi = Mat::roi(
+            &view,
+            Rect::new(0, 0, header.width as i32, header.height as i32),
+        )?;
+        let mut markers = CameraMarkers::default();
+        for m in self.regions.detect(&mut self.detector, &roi)?.0 {
+            markers.push(m);
+        }
+        Ok(markers)
+    }
+}
+
+/// The tracker stage's state: per camera a detector and its region
+/// tracking, the stream's stamp order and sequence, and its counters.
+pub struct Tracker {
+    cameras: [Camera; 2],
     order: StampOrder,
     rejections: Rejections,
     last_seq: Option<u64>,
@@ -47,9 +71,15 @@ impl Tracker {
 
     /// A tracker searching images whole every `n` frames (1: always).
     pub fn with_full_scan_every(mirrored: bool, n: u32) -> Result<Self> {
+        let camera = |phase| -> Result<Camera> {
+            Ok(Camera {
+                detector: Detector::new(mirrored)?,
+                regions: RegionTracker::new(n, phase),
+            })
+        };
         Ok(Self {
-            detector: Detector::new(mirrored)?,
-            regions: RegionTracker::new(n),
+            // The second camera's full scans half a period after the first's.
+            cameras: [camera(0)?, camera(n / 2)?],
             order: StampOrder::default(),
             rejections: Rejections::default(),
             last_seq: None,
@@ -76,28 +106,26 @@ impl Tracker {
             self.frames_missed += header.seq - last - 1;
         }
         self.last_seq = Some(header.seq);
-        let channels = header.bytes_per_pixel().unwrap_or(1) as i32;
         let mut out = StereoDetections {
             seq: header.seq,
             stamp_ns: header.stamp_ns,
             frame_published_ns: header.published_ns,
             ..Default::default()
         };
-        for (k, image) in payload.chunks_exact(header.image_len()).enumerate().take(2) {
-            // A Mat header over the shared-memory image: no copy.
-            let flat =
-                Mat::new_rows_cols_with_data(header.height as i32, header.stride as i32, image)?;
-            let view = flat.reshape(channels, header.height as i32)?;
-            let roi = Mat::roi(
-                &view,
-                Rect::new(0, 0, header.width as i32, header.height as i32),
-            )?;
-            let mut markers = CameraMarkers::default();
-            for m in self.regions.detect(&mut self.detector, k, &roi)?.0 {
-                markers.push(m);
-            }
-            out.cameras[k] = markers;
-        }
+        // The two images on two threads: the right one's on a scoped thread,
+        // the left one's here.
+        let mut images = payload.chunks_exact(header.image_len());
+        let (Some(left), Some(right)) = (images.next(), images.next()) else {
+            anyhow::bail!("frame {}: payload holds fewer than two images", header.seq);
+        };
+        let [first, second] = &mut self.cameras;
+        let (l, r) = std::thread::scope(|s| {
+            let r = s.spawn(|| second.track(header, right));
+            (first.track(header, left), r.join())
+        });
+        out.cameras[0] = l?;
+        out.cameras[1] =
+            r.map_err(|_| anyhow::anyhow!("the right camera's detection panicked"))??;
         Ok(Tracked::Detections(out))
     }
 
@@ -108,7 +136,11 @@ impl Tracker {
 
     /// Images searched whole, and by windows around the last markers.
     pub fn scans(&self) -> (u64, u64) {
-        self.regions.scans()
+        let (a, b) = (
+            self.cameras[0].regions.scans(),
+            self.cameras[1].regions.scans(),
+        );
+        (a.0 + b.0, a.1 + b.1)
     }
 
     /// Frames never received (gaps in the sequence).
