@@ -103,6 +103,10 @@ pub enum StageArgs {
     },
 }
 
+/// How much the recorder gives way to the other stages: see
+/// [`StageArgs::niceness`].
+pub const RECORDER_NICENESS: i32 = 10;
+
 impl StageArgs {
     /// The stage's name in logs and reports: its binary's, or `arm_driver`
     /// for a user's driver.
@@ -116,6 +120,17 @@ impl StageArgs {
             StageArgs::Tracker => "tracker_proc",
             StageArgs::Camera { .. } => "camera_proc",
             StageArgs::Kinematics { .. } => "kinematics_proc",
+        }
+    }
+
+    /// The stage's scheduling niceness (0: the launcher's own). The
+    /// recorder is the one stage no sample waits for: on a busy machine it
+    /// gives way to the stages on the path from frame to sample, and its
+    /// queue takes up the delay.
+    pub fn niceness(&self) -> i32 {
+        match self {
+            StageArgs::Recorder { .. } => RECORDER_NICENESS,
+            _ => 0,
         }
     }
 

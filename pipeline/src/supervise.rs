@@ -58,12 +58,18 @@ impl Launch {
             command.env(messages::trace::TRACE_DIR_ENV, dir);
         }
         command.env(messages::stats::STATS_DIR_ENV, &self.stats_dir);
-        // SAFETY: prctl(2) only, between fork and exec. The stages are told to
-        // stop (SIGTERM, so the recorder finishes its file) if the launcher dies.
+        let niceness = stage.niceness();
+        // SAFETY: prctl(2) and setpriority(2) only, between fork and exec.
+        // The stages are told to stop (SIGTERM, so the recorder finishes its
+        // file) if the launcher dies; a stage off the frame-to-sample path
+        // runs at a lower priority.
         #[allow(unsafe_code)]
         unsafe {
-            command.pre_exec(|| {
+            command.pre_exec(move || {
                 if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) == -1 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                if niceness != 0 && libc::setpriority(libc::PRIO_PROCESS, 0, niceness) == -1 {
                     return Err(std::io::Error::last_os_error());
                 }
                 Ok(())
