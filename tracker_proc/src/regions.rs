@@ -49,6 +49,8 @@ struct CameraState {
     last: Vec<Marker>,
     lately: Vec<(u32, u32, u32)>,
     since_full: u32,
+    /// Whether an image was searched whole yet (the first one is).
+    started: bool,
 }
 
 impl CameraState {
@@ -92,6 +94,7 @@ pub enum Search {
 /// Region tracking for one camera's stream.
 pub struct RegionTracker {
     every: u32,
+    phase: u32,
     state: CameraState,
     full_scans: u64,
     window_scans: u64,
@@ -100,17 +103,16 @@ pub struct RegionTracker {
 
 impl RegionTracker {
     /// Full scans every `full_scan_every` frames (1: every frame, no
-    /// tracking), the first after `full_scan_every - phase` frames (a stereo
-    /// pair's second camera starts half a period in, so that the two
-    /// cameras' full scans fall on different frames).
+    /// tracking): of the first image, then after `full_scan_every - phase`
+    /// frames, then periodically (a stereo pair's second camera goes half a
+    /// period ahead, so that the two cameras' full scans fall on different
+    /// frames).
     pub fn new(full_scan_every: u32, phase: u32) -> Self {
         let every = full_scan_every.max(1);
         Self {
             every,
-            state: CameraState {
-                since_full: phase % every,
-                ..Default::default()
-            },
+            phase: phase % every,
+            state: CameraState::default(),
             full_scans: 0,
             window_scans: 0,
             small: Mat::default(),
@@ -134,31 +136,47 @@ impl RegionTracker {
         // marker back from a fast move, blurred or small, must be seen.
         let wary = state.last.is_empty() || state.missing_one();
         let probe_scale = if wary { WARY_PROBE_SCALE } else { PROBE_SCALE };
-        if state.since_full < self.every
-            && let Some(found) = search_windows(detector, image, &state.last)?
-            && !seen_outside(detector, image, &found, probe_scale, &mut self.small)?
+        if state.started
+            && state.since_full < self.every
+            && let Some(mut found) = search_windows(detector, image, &state.last)?
         {
-            state.saw(&found, self.every);
-            self.window_scans += 1;
-            return Ok((found, Search::Windows));
+            // Markers the low-resolution search sees outside the windows are
+            // searched for at full resolution in windows of their own.
+            let outside = seen_outside(detector, image, &found, probe_scale, &mut self.small)?;
+            let more = if outside.is_empty() {
+                Some(Vec::new())
+            } else {
+                search_windows(detector, image, &outside)?
+            };
+            if let Some(more) = more {
+                for m in more {
+                    if !found.iter().any(|f| same(f, &m)) {
+                        found.push(m);
+                    }
+                }
+                state.saw(&found, self.every);
+                self.window_scans += 1;
+                return Ok((found, Search::Windows));
+            }
         }
         let found = detector.detect(image)?;
         state.saw(&found, self.every);
-        state.since_full = 0;
+        state.since_full = if state.started { 0 } else { self.phase };
+        state.started = true;
         self.full_scans += 1;
         Ok((found, Search::Full))
     }
 }
 
-/// Whether a search of the whole image at 1/`scale` of its resolution sees
-/// a marker that is not among `found`.
+/// The markers a search of the whole image at 1/`scale` of its resolution
+/// sees that are not among `found`, in full-resolution pixels.
 fn seen_outside(
     detector: &mut Detector,
     image: &(impl MatTraitConst + opencv::core::ToInputArray),
     found: &[Marker],
     scale: i32,
     small: &mut Mat,
-) -> Result<bool> {
+) -> Result<Vec<Marker>> {
     let size = Size::new(image.cols() / scale, image.rows() / scale);
     imgproc::resize(image, small, size, 0.0, 0.0, imgproc::INTER_AREA)?;
     let s = f64::from(scale);
@@ -167,14 +185,19 @@ fn seen_outside(
     Ok(detector
         .detect_at_least(small, PROBE_MIN_SIDE_PX)?
         .into_iter()
-        .any(|mut m| {
+        .map(|mut m| {
             for v in m.corners.iter_mut().chain(m.center.iter_mut()) {
                 *v = s * (*v + 0.5) - 0.5;
             }
-            !found
-                .iter()
-                .any(|f| f.id == m.id && f.mirrored == m.mirrored && near(f, &m))
-        }))
+            m
+        })
+        .filter(|m| !found.iter().any(|f| same(f, m)))
+        .collect())
+}
+
+/// Whether `m` is `old` (same id and flag) where it could have moved in a frame.
+fn same(m: &Marker, old: &Marker) -> bool {
+    m.id == old.id && m.mirrored == old.mirrored && near(m, old)
 }
 
 /// Searches the windows around `last`; `None` if one of them was not found
@@ -216,11 +239,7 @@ fn search_windows(
             found.push(m);
         }
     }
-    let refound = last.iter().all(|old| {
-        found
-            .iter()
-            .any(|m| m.id == old.id && m.mirrored == old.mirrored && near(m, old))
-    });
+    let refound = last.iter().all(|old| found.iter().any(|m| same(m, old)));
     Ok(refound.then_some(found))
 }
 
