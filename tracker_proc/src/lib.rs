@@ -105,7 +105,8 @@ pub enum Refine {
     /// OpenCV's `cornerSubPix` with its default 5 px half-window.
     Subpix,
     /// Lines fitted to the four outer edges ([`refine::refine_corners`])
-    /// for markers up to 60 px a side, `cornerSubPix` for larger ones.
+    /// for markers up to 100 px a side; for larger ones `cornerSubPix`
+    /// started from the lines' corners.
     Lines,
 }
 
@@ -326,7 +327,10 @@ impl Detector {
                 Refine::Lines if shortest_side(&quad) <= LINES_UP_TO_PX => {
                     refine::refine_corners(grey, &quad).unwrap_or(quad)
                 }
-                Refine::Lines => subpix(grey, &quad)?,
+                Refine::Lines => {
+                    let start = refine::refine_corners(grey, &quad).unwrap_or(quad);
+                    subpix(grey, &start)?
+                }
                 Refine::Subpix => subpix(grey, &quad)?,
             };
             let c: Vec<[f64; 2]> = quad
@@ -385,9 +389,13 @@ fn opencv_pass(
 const STOCK_MIN_PERIMETER_RATE: f64 = 0.03;
 
 /// Markers up to this side (pixels) get corners from edge lines; larger
-/// ones from `cornerSubPix`, whose 5 px window then stays well inside the
-/// white margin and the border. Measured on rendered frames, edge lines put
-/// the centres of 150 to 200 px markers off by up to 2.5 px.
+/// ones from `cornerSubPix` (whose 5 px window then stays well inside the
+/// white margin and the border) started from the edge lines' corners. On
+/// rendered frames edge lines alone put the corners of sharp 130-200 px
+/// markers off by up to 0.9 px (the lens bends long edges), and
+/// `cornerSubPix` alone, started from the candidate's polygon, put blurred
+/// ones off by 4-10 px (the polygon cuts a blurred corner by up to 9 px,
+/// beyond its window's reach).
 const LINES_UP_TO_PX: f32 = 100.0;
 
 /// OpenCV's stock pass, the baseline the benchmarks and the real-image set

@@ -8,7 +8,10 @@
 //! points outward (dark border inside, light surround outside), the line is
 //! the weighted total-least-squares fit of those pixels, and the corners are
 //! where adjacent lines meet. Gradients of the other sense (a label's edge
-//! beyond the white margin, the inner edge of the border) get no vote.
+//! beyond the white margin, the inner edge of the border) get no vote. A
+//! long edge, which lens distortion bends, is fitted by halves, each corner
+//! from the halves that meet there; the first look reaches up to 8 px from
+//! the candidate's edge, as far as a blurred corner's polygon may be off.
 
 use nalgebra::{Matrix2, Vector2};
 use opencv::core::Point2f;
@@ -17,6 +20,13 @@ use opencv::prelude::*;
 /// Share of each edge left out at both ends (the corners' rounding and the
 /// neighbouring edge's gradient).
 const END_MARGIN: f64 = 0.15;
+
+/// How far beyond a candidate's edge the first look reaches, px.
+const MAX_WIDE: f64 = 8.0;
+/// Edges longer than this are fitted by halves, px.
+const SPLIT_EDGES_OVER_PX: f64 = 80.0;
+/// Narrow looks about the last fit.
+const NARROW_PASSES: usize = 2;
 
 /// A line `normal . p = offset`, `normal` of unit length.
 #[derive(Debug, Clone, Copy)]
@@ -111,6 +121,7 @@ impl Band {
     fn collect(
         grey: &Patch,
         (a, b): (Vector2<f64>, Vector2<f64>),
+        span: (f64, f64),
         outward: Vector2<f64>,
         line: Line,
         half_width: f64,
@@ -132,7 +143,7 @@ impl Band {
                 }
                 let p = Vector2::new(f64::from(x), f64::from(y));
                 let t = (p - a).dot(&along) / length;
-                if !(END_MARGIN..=1.0 - END_MARGIN).contains(&t) {
+                if !(span.0..=span.1).contains(&t) {
                     continue;
                 }
                 if (line.normal.dot(&p) - line.offset).abs() > half_width {
@@ -185,12 +196,16 @@ pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Opt
         .iter()
         .map(|p| Vector2::new(f64::from(p.x), f64::from(p.y)))
         .collect();
-    // The widest look is 4 px beyond an edge, plus the Sobel window.
-    let grey = Patch::around(image, &c, 7.0)?;
+    // The widest look is MAX_WIDE px beyond an edge, plus the Sobel window.
+    let grey = Patch::around(image, &c, MAX_WIDE + 3.0)?;
     let center = c.iter().sum::<Vector2<f64>>() / 4.0;
     let shortest = (0..4)
         .map(|k| (c[(k + 1) % 4] - c[k]).norm())
         .fold(f64::INFINITY, f64::min);
+    // Per edge, the line near its start and the line near its end: one
+    // line over the whole edge, or on a long edge (which the lens bends) a
+    // line over each half.
+    let halves = shortest > SPLIT_EDGES_OVER_PX;
     let mut lines = Vec::with_capacity(4);
     for k in 0..4 {
         let (a, b) = (c[k], c[(k + 1) % 4]);
@@ -203,17 +218,29 @@ pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Opt
             normal: outward,
             offset: outward.dot(&a),
         };
-        // A wide look first (the candidate's corners are whole pixels), then a
-        // narrow one about the first fit.
-        let wide = (0.12 * shortest).clamp(1.5, 4.0);
-        let first = Band::collect(&grey, (a, b), outward, start, wide)?.line(outward)?;
-        let narrow = (0.5 * wide).max(1.2);
-        lines.push(Band::collect(&grey, (a, b), outward, first, narrow)?.line(outward)?);
+        let fit = |span: (f64, f64)| -> Option<Line> {
+            // A wide look first (the candidate's corners are whole pixels),
+            // then narrow ones about the last fit.
+            let wide = (0.12 * shortest).clamp(1.5, MAX_WIDE);
+            let mut line =
+                Band::collect(&grey, (a, b), span, outward, start, wide)?.line(outward)?;
+            let narrow = (0.5 * wide).max(1.2);
+            for _ in 0..NARROW_PASSES {
+                line = Band::collect(&grey, (a, b), span, outward, line, narrow)?.line(outward)?;
+            }
+            Some(line)
+        };
+        if halves {
+            lines.push((fit((END_MARGIN, 0.5))?, fit((0.5, 1.0 - END_MARGIN))?));
+        } else {
+            let line = fit((END_MARGIN, 1.0 - END_MARGIN))?;
+            lines.push((line, line));
+        }
     }
     let mut out = [Point2f::default(); 4];
     for k in 0..4 {
         // Corner k ends edge k - 1 and starts edge k.
-        let p = lines[(k + 3) % 4].intersect(&lines[k])?;
+        let p = lines[(k + 3) % 4].1.intersect(&lines[k].0)?;
         if (p - c[k]).norm() > 0.2 * shortest {
             return None;
         }
