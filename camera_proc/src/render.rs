@@ -564,11 +564,12 @@ impl Renderer {
                                 &mut step_alpha,
                             )?;
                         }
+                        let share = 1.0 / poses as f32;
                         for (acc, v) in light.iter_mut().zip(&step_light) {
-                            *acc += v / poses as f32;
+                            *acc += v * share;
                         }
                         for (acc, v) in alpha.iter_mut().zip(&step_alpha) {
-                            *acc += v / poses as f32;
+                            *acc += v * share;
                         }
                     }
                 }

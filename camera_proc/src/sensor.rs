@@ -42,8 +42,10 @@ pub fn vignetting(width: usize, height: usize, center: [f64; 2], corner: f64) ->
 pub struct Noise {
     /// N(0, 1) * [`TABLE_SCALE`], saturated to i8.
     table: Vec<i8>,
-    /// Per grey level: its noise sigma * 256 / [`TABLE_SCALE`].
-    sigma: [i32; 256],
+    /// The noisy level for each (level, draw): `level << 8 | draw as u8`
+    /// indexes it; one lookup a pixel instead of a multiply, a shift and a
+    /// clamp.
+    noisy: Vec<u8>,
     pixels: usize,
     quality: Option<u8>,
 }
@@ -51,6 +53,7 @@ pub struct Noise {
 impl Noise {
     /// Noise for images of `pixels` pixels as `look` says; `seed` fixes the table.
     pub fn new(look: &Look, pixels: usize, seed: u64) -> Self {
+        // Per grey level: its noise sigma * 256 / TABLE_SCALE.
         let mut sigma = [0i32; 256];
         for (level, s) in sigma.iter_mut().enumerate() {
             let signal = (level as f64 - look.flare_dn).max(0.0);
@@ -75,9 +78,17 @@ impl Noise {
                 })
                 .collect()
         };
+        // Each level with each draw at that level's sigma.
+        let noisy = (0..256 * 256)
+            .map(|i: usize| {
+                let (level, draw) = ((i >> 8) as i32, i32::from((i & 0xff) as u8 as i8));
+                let v = level + ((draw * sigma[level as usize] + 128) >> 8);
+                v.clamp(0, 255) as u8
+            })
+            .collect();
         Self {
             table,
-            sigma,
+            noisy,
             pixels,
             quality: look.jpeg_quality,
         }
@@ -91,8 +102,7 @@ impl Noise {
             let offset = (splitmix(seed) % span as u64) as usize;
             let draws = &self.table[offset..offset + image.len()];
             for (p, &n) in image.iter_mut().zip(draws) {
-                let v = i32::from(*p) + ((i32::from(n) * self.sigma[usize::from(*p)] + 128) >> 8);
-                *p = v.clamp(0, 255) as u8;
+                *p = self.noisy[usize::from(*p) << 8 | usize::from(n as u8)];
             }
         }
         if let Some(quality) = self.quality {

@@ -100,13 +100,17 @@ fn header(seq: u64) -> FrameHeader {
     }
 }
 
-/// Runs the tracker's step on a frame (stamps keep rising across rounds).
+/// Runs the tracker's step on a frame, then its catch-up (the periodic
+/// full scans), as the stage does (stamps keep rising across rounds).
 fn track(tracker: &mut Tracker, seq: &mut u64, frame: &Frame) -> StereoDetections {
     *seq += 1;
-    match tracker.step(&header(*seq), &frame.payload).unwrap() {
+    let header = header(*seq);
+    let detections = match tracker.step(&header, &frame.payload).unwrap() {
         Tracked::Detections(d) => d,
         Tracked::Rejected(why) => panic!("frame refused: {why}"),
-    }
+    };
+    tracker.catch_up(&header, &frame.payload).unwrap();
+    detections
 }
 
 /// How much of the truth a pass found: markers found (id, and the

@@ -83,18 +83,23 @@ fn run(prefix: &str, mirrored: bool, full_scan_every: u32) -> Result<()> {
             loop {
                 let received_ns = now_ns();
                 let cpu = messages::stats::StepStart::now();
-                let Some(tracked) = frames.receive_with(|h, payload| tracker.step(h, payload))?
-                else {
+                // Detections go out first; the periodic full scan of the
+                // same frame follows, before the frame is let go.
+                let step = |h: &messages::FrameHeader, payload: &[u8]| -> Result<()> {
+                    if let Tracked::Detections(det) = tracker.step(h, payload)? {
+                        publisher.send(det)?;
+                        let now = now_ns();
+                        stats.record("receive_to_publish", now - received_ns);
+                        stats.record("capture_to_publish", now - det.stamp_ns);
+                        count += 1;
+                    }
+                    tracker.catch_up(h, payload)
+                };
+                let Some(stepped) = frames.receive_with(step)? else {
                     return Ok(ControlFlow::Continue(()));
                 };
+                stepped?;
                 stats.cpu_step(cpu);
-                if let Tracked::Detections(det) = tracked? {
-                    publisher.send(det)?;
-                    let now = now_ns();
-                    stats.record("receive_to_publish", now - received_ns);
-                    stats.record("capture_to_publish", now - det.stamp_ns);
-                    count += 1;
-                }
             }
         })?;
     stats.count("frames_missed", tracker.frames_missed());

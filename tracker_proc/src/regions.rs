@@ -60,6 +60,11 @@ impl CameraState {
             entry.2 += 1;
         }
         self.lately.retain(|e| e.2 < every);
+        self.saw_again(found);
+    }
+
+    /// Replaces what the last frame showed by `found`, a (second) look at it.
+    fn saw_again(&mut self, found: &[Marker]) {
         for m in found {
             match self
                 .lately
@@ -99,6 +104,8 @@ pub struct RegionTracker {
     full_scans: u64,
     window_scans: u64,
     small: Mat,
+    /// A periodic full scan is due, for [`RegionTracker::catch_up`].
+    due: bool,
 }
 
 impl RegionTracker {
@@ -116,6 +123,7 @@ impl RegionTracker {
             full_scans: 0,
             window_scans: 0,
             small: Mat::default(),
+            due: false,
         }
     }
 
@@ -136,8 +144,11 @@ impl RegionTracker {
         // marker back from a fast move, blurred or small, must be seen.
         let wary = state.last.is_empty() || state.missing_one();
         let probe_scale = if wary { WARY_PROBE_SCALE } else { PROBE_SCALE };
+        // The periodic full scan waits for `catch_up`, after the frame's
+        // detections are out; if nobody catches up, it is made here.
+        self.due = state.since_full >= self.every;
         if state.started
-            && state.since_full < self.every
+            && state.since_full < 2 * self.every
             && let Some(mut found) = search_windows(detector, image, &state.last)?
         {
             // Markers the low-resolution search sees outside the windows are
@@ -163,8 +174,34 @@ impl RegionTracker {
         state.saw(&found, self.every);
         state.since_full = if state.started { 0 } else { self.phase };
         state.started = true;
+        self.due = false;
         self.full_scans += 1;
         Ok((found, Search::Full))
+    }
+
+    /// Whether [`RegionTracker::catch_up`] has a full scan to make.
+    pub fn due(&self) -> bool {
+        self.due
+    }
+
+    /// Makes the periodic full scan of the image [`RegionTracker::detect`]
+    /// last searched by windows, once its detections are out: what it finds
+    /// (a marker too small for the low-resolution search, come into view)
+    /// is searched for from the next frame on. Returns whether it scanned.
+    pub fn catch_up(
+        &mut self,
+        detector: &mut Detector,
+        image: &(impl MatTraitConst + opencv::core::ToInputArray),
+    ) -> Result<bool> {
+        if !self.due {
+            return Ok(false);
+        }
+        let found = detector.detect(image)?;
+        self.state.saw_again(&found);
+        self.state.since_full = 0;
+        self.due = false;
+        self.full_scans += 1;
+        Ok(true)
     }
 }
 

@@ -4,6 +4,7 @@
 
 use anyhow::Result;
 use messages::{CameraMarkers, FrameHeader, Rejections, StampOrder, StereoDetections};
+use opencv::boxed_ref::BoxedRef;
 use opencv::core::{Mat, Rect};
 use opencv::prelude::*;
 
@@ -33,9 +34,14 @@ struct Camera {
 }
 
 impl Camera {
-    /// The markers of one image of a frame, read in place through a `Mat`
+    /// Runs `f` on one image of a frame, read in place through a `Mat`
     /// header over the shared-memory pixels: no copy.
-    fn track(&mut self, header: &FrameHeader, image: &[u8]) -> Result<CameraMarkers> {
+    fn with_image<R>(
+        &mut self,
+        header: &FrameHeader,
+        image: &[u8],
+        f: impl FnOnce(&mut Self, &BoxedRef<'_, Mat>) -> Result<R>,
+    ) -> Result<R> {
         let channels = header.bytes_per_pixel().unwrap_or(1) as i32;
         let flat = Mat::new_rows_cols_with_data(header.height as i32, header.stride as i32, image)?;
         let view = flat.reshape(channels, header.height as i32)?;
@@ -43,11 +49,28 @@ impl Camera {
             &view,
             Rect::new(0, 0, header.width as i32, header.height as i32),
         )?;
-        let mut markers = CameraMarkers::default();
-        for m in self.regions.detect(&mut self.detector, &roi)?.0 {
-            markers.push(m);
+        f(self, &roi)
+    }
+
+    /// The markers of one image of a frame.
+    fn track(&mut self, header: &FrameHeader, image: &[u8]) -> Result<CameraMarkers> {
+        self.with_image(header, image, |camera, roi| {
+            let mut markers = CameraMarkers::default();
+            for m in camera.regions.detect(&mut camera.detector, roi)?.0 {
+                markers.push(m);
+            }
+            Ok(markers)
+        })
+    }
+
+    /// The periodic full scan of the image last tracked, if it is due.
+    fn catch_up(&mut self, header: &FrameHeader, image: &[u8]) -> Result<()> {
+        if self.regions.due() {
+            self.with_image(header, image, |camera, roi| {
+                camera.regions.catch_up(&mut camera.detector, roi)
+            })?;
         }
-        Ok(markers)
+        Ok(())
     }
 }
 
@@ -127,6 +150,22 @@ impl Tracker {
         out.cameras[1] =
             r.map_err(|_| anyhow::anyhow!("the right camera's detection panicked"))??;
         Ok(Tracked::Detections(out))
+    }
+
+    /// Makes the periodic full scans due on the frame [`Tracker::step`]
+    /// last tracked (the same header and payload): the stage calls it once
+    /// that frame's detections are published, so that a full scan delays
+    /// no detections. What it finds is searched for from the next frame on.
+    /// Without it, the full scans are made in `step`, a period late.
+    pub fn catch_up(&mut self, header: &FrameHeader, payload: &[u8]) -> Result<()> {
+        if self.last_seq != Some(header.seq) || header.validate(payload.len()).is_err() {
+            return Ok(());
+        }
+        let mut images = payload.chunks_exact(header.image_len());
+        for (camera, image) in self.cameras.iter_mut().zip(&mut images) {
+            camera.catch_up(header, image)?;
+        }
+        Ok(())
     }
 
     /// Frames dropped as malformed or out of order.

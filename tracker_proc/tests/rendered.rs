@@ -279,6 +279,9 @@ fn region_tracking_finds_what_full_scans_find() {
         let Tracked::Detections(d) = tracker.step(&header, &payload).unwrap() else {
             panic!("frame {seq} refused");
         };
+        // The periodic full scans, as the stage makes them once a frame's
+        // detections are out.
+        tracker.catch_up(&header, &payload).unwrap();
         for (k, image) in [l, r].into_iter().enumerate() {
             let mat = Mat::from_slice(&image)
                 .unwrap()
