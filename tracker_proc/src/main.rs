@@ -31,7 +31,9 @@ enum Command {
         no_mirrored: bool,
         /// Search each image whole every N frames, and in between only
         /// around the markers of the last frame (a marker lost there brings
-        /// the full scan forward); 1 searches every frame whole.
+        /// the full scan forward); the periodic whole search of a frame is
+        /// made after its detections are published. 1 searches every frame
+        /// whole.
         #[arg(long, value_name = "N", default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
         full_scan_every: u32,
     },

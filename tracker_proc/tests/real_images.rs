@@ -19,7 +19,7 @@ use opencv::core::Mat;
 use opencv::imgcodecs;
 use opencv::prelude::*;
 use tracker_proc::real_set::{
-    Found, MIRROR_SYMMETRIC_IDS, RealSet, Report, readings_near, stock_pass, table,
+    Found, MIRROR_SYMMETRIC_IDS, RealSet, Report, Variant, readings_near, stock_pass, table,
 };
 use tracker_proc::{Detector, StockPass, diagonal_intersection};
 
@@ -53,6 +53,22 @@ fn build_set() -> RealSet {
     RealSet::load(&out).unwrap()
 }
 
+/// A variant's image, grey.
+fn grey(set: &RealSet, v: &Variant) -> Mat {
+    let path = set.dir.join(&v.file);
+    imgcodecs::imread(path.to_str().unwrap(), imgcodecs::IMREAD_GRAYSCALE).unwrap()
+}
+
+/// What our detector finds in an image.
+fn finds(detector: &mut Detector, image: &Mat) -> Vec<Found> {
+    detector
+        .detect(image)
+        .unwrap()
+        .iter()
+        .map(Found::from)
+        .collect()
+}
+
 #[test]
 fn finds_what_opencv5_finds_and_more_with_a_quarter_of_its_centre_error() {
     let set = real_set();
@@ -66,15 +82,8 @@ fn finds_what_opencv5_finds_and_more_with_a_quarter_of_its_centre_error() {
     let (mut ours, mut stock46, mut stock5) =
         (Report::default(), Report::default(), Report::default());
     for v in &set.variants {
-        let path = set.dir.join(&v.file);
-        let image = imgcodecs::imread(path.to_str().unwrap(), imgcodecs::IMREAD_GRAYSCALE).unwrap();
-        let found: Vec<Found> = detector
-            .detect(&image)
-            .unwrap()
-            .iter()
-            .map(Found::from)
-            .collect();
-        ours.add(v, &found);
+        let image = grey(set, v);
+        ours.add(v, &finds(&mut detector, &image));
         stock46.add(
             v,
             &stock_pass(&stock_pass_detector, &image, v.mirrored).unwrap(),
@@ -155,15 +164,7 @@ fn realistic_frames_cost_the_tracker_what_real_photographs_do() {
     let mut detector = Detector::new(true).unwrap();
     let mut ours = Report::default();
     for v in &set.variants {
-        let path = set.dir.join(&v.file);
-        let image = imgcodecs::imread(path.to_str().unwrap(), imgcodecs::IMREAD_GRAYSCALE).unwrap();
-        let found: Vec<Found> = detector
-            .detect(&image)
-            .unwrap()
-            .iter()
-            .map(Found::from)
-            .collect();
-        ours.add(v, &found);
+        ours.add(v, &finds(&mut detector, &grey(set, v)));
     }
     let medians: Vec<(String, f64)> = ours
         .per_variant
