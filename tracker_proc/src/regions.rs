@@ -7,13 +7,15 @@
 //! marker's side and a motion allowance, overlapping windows merged) with the same
 //! [`Detector`], on the same pixels, so what it finds there it finds as a
 //! full scan would. A search of the whole image at a quarter of its
-//! resolution looks out for markers outside the windows. The
-//! whole image is searched at full resolution every `full_scan_every`
-//! frames, and at once whenever a marker is not found again in its window,
-//! or the low-resolution search sees one the windows do not hold. While a
+//! resolution looks out for markers outside the windows, and those it
+//! sees there are searched for in windows of their own. The whole image is
+//! searched at full resolution at once whenever a marker is not found again
+//! in its window, and every `full_scan_every` frames: that periodic scan is
+//! made by [`RegionTracker::catch_up`] once the frame's detections are out,
+//! and what it finds is searched for from the next frame on. While a
 //! marker seen within the last `full_scan_every` frames is missing (it may
 //! come back anywhere, as the arm's card does after a fast move), or none
-//! is known, that search looks at half resolution instead of a quarter. A
+//! is known, the low-resolution search looks at half resolution instead of a quarter. A
 //! marker too small for it (under about 24 px a side, 12 px when wary)
 //! that enters the view is found at the next full scan at the latest. The
 //! two cameras' full scans are staggered so that no frame pays for both.
@@ -147,7 +149,10 @@ impl RegionTracker {
         // The periodic full scan waits for `catch_up`, after the frame's
         // detections are out; if nobody catches up, it is made here.
         self.due = state.since_full >= self.every;
+        // Every image whole (`full_scan_every` 1) means each frame's own
+        // detections come from a full scan.
         if state.started
+            && self.every > 1
             && state.since_full < 2 * self.every
             && let Some(mut found) = search_windows(detector, image, &state.last)?
         {
@@ -347,6 +352,36 @@ mod tests {
             corners: [x, y, x + s, y, x + s, y + s, x, y + s],
             center: [x + s / 2.0, y + s / 2.0],
         }
+    }
+
+    /// Runs `frames` blank images through a tracker, catching up after
+    /// each or not; returns (searched whole, by windows, whole after the detections).
+    fn schedule(every: u32, frames: usize, catch_up: bool) -> (u64, u64, u64) {
+        let mut detector = Detector::new(true).unwrap();
+        let blank = Mat::zeros(480, 640, opencv::core::CV_8UC1)
+            .unwrap()
+            .to_mat()
+            .unwrap();
+        let mut tracker = RegionTracker::new(every, 0);
+        let mut caught_up = 0;
+        for _ in 0..frames {
+            tracker.detect(&mut detector, &blank).unwrap();
+            if catch_up && tracker.catch_up(&mut detector, &blank).unwrap() {
+                caught_up += 1;
+            }
+        }
+        let (whole, windows) = tracker.scans();
+        (whole, windows, caught_up)
+    }
+
+    #[test]
+    fn periodic_full_scans_come_after_the_detections_or_a_period_late() {
+        // Every image whole: each frame's own detections.
+        assert_eq!(schedule(1, 5, true), (5, 0, 0));
+        // The first image whole; then every 4th after the detections are out.
+        assert_eq!(schedule(4, 9, true), (3, 8, 2));
+        // Nobody catches up: made in `detect`, a period late.
+        assert_eq!(schedule(4, 9, false), (2, 7, 0));
     }
 
     #[test]
