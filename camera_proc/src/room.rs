@@ -94,15 +94,34 @@ impl Picture {
         // Shifted by one so truncation floors.
         let (x0, y0) = ((u + 1.0) as usize, (v + 1.0) as usize);
         let (fx, fy) = (u + 1.0 - x0 as f32, v + 1.0 - y0 as f32);
+        let weights = [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        ];
+        // All four taps inside, as for most of a card's pixels: no checks
+        // (the same sums in the same order as below).
+        if x0 >= 1 && y0 >= 1 && x0 < self.width && y0 < self.height {
+            let i = (y0 - 1) * self.width + (x0 - 1);
+            let t = &self.texels;
+            let taps = [t[i], t[i + 1], t[i + self.width], t[i + self.width + 1]];
+            let (mut value, mut cover) = (0.0, 0.0);
+            for (texel, weight) in taps.into_iter().zip(weights) {
+                value += weight * texel;
+                cover += weight;
+            }
+            return (value, cover);
+        }
         let at = |x: usize, y: usize| -> Option<f32> {
             (x >= 1 && y >= 1 && x <= self.width && y <= self.height)
                 .then(|| self.texels[(y - 1) * self.width + (x - 1)])
         };
         let taps = [
-            (at(x0, y0), (1.0 - fx) * (1.0 - fy)),
-            (at(x0 + 1, y0), fx * (1.0 - fy)),
-            (at(x0, y0 + 1), (1.0 - fx) * fy),
-            (at(x0 + 1, y0 + 1), fx * fy),
+            (at(x0, y0), weights[0]),
+            (at(x0 + 1, y0), weights[1]),
+            (at(x0, y0 + 1), weights[2]),
+            (at(x0 + 1, y0 + 1), weights[3]),
         ];
         let (mut value, mut cover) = (0.0, 0.0);
         for (texel, weight) in taps {
