@@ -123,13 +123,15 @@ impl StageArgs {
         }
     }
 
-    /// The stage's scheduling niceness (0: the launcher's own). The
-    /// recorder is the one stage no sample waits for: on a busy machine it
-    /// gives way to the stages on the path from frame to sample, and its
-    /// queue takes up the delay.
+    /// The stage's scheduling niceness (0: the launcher's own). A live
+    /// run's recorder is the one stage no sample waits for: on a busy
+    /// machine it gives way to the stages on the path from frame to sample,
+    /// and its queue takes up the delay. A replay's recorder (`no_drop`) is
+    /// on the replay's path, and must be subscribed to everything before
+    /// the replayed messages come: it keeps the launcher's priority.
     pub fn niceness(&self) -> i32 {
         match self {
-            StageArgs::Recorder { .. } => RECORDER_NICENESS,
+            StageArgs::Recorder { no_drop: false, .. } => RECORDER_NICENESS,
             _ => 0,
         }
     }
@@ -294,6 +296,21 @@ pub fn subscribers_of<'a>(
 mod tests {
     use super::*;
     use std::path::Path;
+
+    #[test]
+    fn only_a_live_runs_recorder_gives_way() {
+        let recorder = |no_drop| StageArgs::Recorder {
+            out: "out.mcap".into(),
+            no_drop,
+            rig: "r.toml".into(),
+            attach: Vec::new(),
+            meta: Vec::new(),
+            live_view: None,
+        };
+        assert_eq!(recorder(false).niceness(), RECORDER_NICENESS);
+        assert_eq!(recorder(true).niceness(), 0);
+        assert_eq!(StageArgs::Tracker.niceness(), 0);
+    }
 
     #[test]
     fn command_lines_follow_the_typed_arguments() {
