@@ -90,11 +90,6 @@ impl ThresholdWindows {
             step: 10,
         }
     }
-
-    /// How many thresholded images a pass makes.
-    pub fn count(&self) -> i32 {
-        (self.max - self.min) / self.step.max(1) + 1
-    }
 }
 
 /// Corner placement.
