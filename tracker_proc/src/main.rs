@@ -30,10 +30,10 @@ enum Command {
         #[arg(long)]
         no_mirrored: bool,
         /// Search each image whole every N frames, and in between only
-        /// around the markers of the last frame (a marker lost there brings
-        /// the full scan forward); the periodic whole search of a frame is
-        /// made after its detections are published. 1 searches every frame
-        /// whole.
+        /// around the markers of the last frame, with a low-resolution
+        /// look-out over the whole image (a marker not seen anywhere brings
+        /// the full scan forward); a frame's whole search is made after its
+        /// detections are published. 1 searches every frame whole.
         #[arg(long, value_name = "N", default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
         full_scan_every: u32,
     },
@@ -88,10 +88,18 @@ fn run(prefix: &str, mirrored: bool, full_scan_every: u32) -> Result<()> {
                 // Detections go out first; the periodic full scan of the
                 // same frame follows, before the frame is let go.
                 let step = |h: &messages::FrameHeader, payload: &[u8]| -> Result<()> {
+                    let whole_before = tracker.scans().0;
                     if let Tracked::Detections(det) = tracker.step(h, payload)? {
                         publisher.send(det)?;
                         let now = now_ns();
                         stats.record("receive_to_publish", now - received_ns);
+                        // Frames an image of which was searched whole before
+                        // the detections went out: the latency's tail.
+                        if tracker.scans().0 > whole_before {
+                            stats.record("receive_to_publish_whole", now - received_ns);
+                        } else {
+                            stats.record("receive_to_publish_windows", now - received_ns);
+                        }
                         stats.record("capture_to_publish", now - det.stamp_ns);
                         count += 1;
                     }

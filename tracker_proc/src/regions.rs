@@ -6,19 +6,24 @@
 //! searched in a window around each of those markers (grown by half the
 //! marker's side and a motion allowance, overlapping windows merged) with the same
 //! [`Detector`], on the same pixels, so what it finds there it finds as a
-//! full scan would. A search of the whole image at a quarter of its
+//! full scan would; a marker cut by its window's edge is searched for again
+//! in a larger window. A search of the whole image at a quarter of its
 //! resolution looks out for markers outside the windows, and those it
-//! sees there are searched for in windows of their own. The whole image is
-//! searched at full resolution at once whenever a marker is not found again
-//! in its window, and every `full_scan_every` frames: that periodic scan is
-//! made by [`RegionTracker::catch_up`] once the frame's detections are out,
-//! and what it finds is searched for from the next frame on. While a
-//! marker seen within the last `full_scan_every` frames is missing (it may
-//! come back anywhere, as the arm's card does after a fast move), or none
-//! is known, the low-resolution search looks at half resolution instead of a quarter. A
-//! marker too small for it (under about 24 px a side, 12 px when wary)
-//! that enters the view is found at the next full scan at the latest. The
-//! two cameras' full scans are staggered so that no frame pays for both.
+//! sees there are searched for in windows of their own. While a marker
+//! seen within the last `full_scan_every` frames is missing (it may come
+//! back anywhere, as the arm's card does after a fast move), or none is
+//! known, or one was not found again in its window, that look-out is at
+//! half resolution instead of a quarter.
+//!
+//! No frame waits for a search of the whole image at full resolution but
+//! the first: it is made by [`RegionTracker::catch_up`] once the frame's
+//! detections are out, every `full_scan_every` frames and after a frame
+//! where a marker of the last one was not found anywhere (gone, or too
+//! small or blurred for the look-out); what it finds is searched for from
+//! the next frame on. A marker too small for the look-out (under about
+//! 24 px a side, 12 px when wary) that enters the view is found at the next
+//! full scan at the latest. The two cameras' full scans are staggered so
+//! that no frame pays for both.
 
 use anyhow::Result;
 use messages::Marker;
@@ -145,35 +150,45 @@ impl RegionTracker {
         // With a marker missing, or none known, the look-out is sharper: a
         // marker back from a fast move, blurred or small, must be seen.
         let wary = state.last.is_empty() || state.missing_one();
-        let probe_scale = if wary { WARY_PROBE_SCALE } else { PROBE_SCALE };
         // The periodic full scan waits for `catch_up`, after the frame's
         // detections are out; if nobody catches up, it is made here.
         self.due = state.since_full >= self.every;
         // Every image whole (`full_scan_every` 1) means each frame's own
         // detections come from a full scan.
-        if state.started
-            && self.every > 1
-            && state.since_full < 2 * self.every
-            && let Some(mut found) = search_windows(detector, image, &state.last)?
-        {
+        if state.started && self.every > 1 && state.since_full < 2 * self.every {
+            let mut found = search_windows(detector, image, &state.last)?;
+            // A marker not found again in its window has moved further than
+            // allowed, or gone: the look-out is sharper at once.
+            let lost = !state
+                .last
+                .iter()
+                .all(|old| found.iter().any(|m| same(m, old)));
+            let probe_scale = if wary || lost {
+                WARY_PROBE_SCALE
+            } else {
+                PROBE_SCALE
+            };
             // Markers the low-resolution search sees outside the windows are
             // searched for at full resolution in windows of their own.
             let outside = seen_outside(detector, image, &found, probe_scale, &mut self.small)?;
-            let more = if outside.is_empty() {
-                Some(Vec::new())
-            } else {
-                search_windows(detector, image, &outside)?
-            };
-            if let Some(more) = more {
-                for m in more {
-                    if !found.iter().any(|f| same(f, &m)) {
-                        found.push(m);
-                    }
+            for m in search_windows(detector, image, &outside)? {
+                if !found.iter().any(|f| same(f, &m)) {
+                    found.push(m);
                 }
-                state.saw(&found, self.every);
-                self.window_scans += 1;
-                return Ok((found, Search::Windows));
             }
+            // Still missing anywhere: gone, or too small or blurred for the
+            // look-out. The whole image is searched once the detections are out.
+            let missing = state.last.iter().any(|old| {
+                !found
+                    .iter()
+                    .any(|m| m.id == old.id && m.mirrored == old.mirrored)
+            });
+            if missing {
+                self.due = true;
+            }
+            state.saw(&found, self.every);
+            self.window_scans += 1;
+            return Ok((found, Search::Windows));
         }
         let found = detector.detect(image)?;
         state.saw(&found, self.every);
@@ -242,19 +257,40 @@ fn same(m: &Marker, old: &Marker) -> bool {
     m.id == old.id && m.mirrored == old.mirrored && near(m, old)
 }
 
-/// Searches the windows around `last`; `None` if one of them was not found
-/// again (the caller then scans the whole image).
+/// Searches the windows around `last` at full resolution; returns what
+/// they hold. A marker cut by its window's edge is searched for again in a
+/// window grown around it; if that cuts it too, it is left out (its corners
+/// would not be a full scan's).
 fn search_windows(
     detector: &mut Detector,
     image: &(impl MatTraitConst + opencv::core::ToInputArray),
     last: &[Marker],
-) -> Result<Option<Vec<Marker>>> {
+) -> Result<Vec<Marker>> {
     let (width, height) = (image.cols(), image.rows());
-    // Each window with the smallest side searched for in it: half the
-    // smallest of its markers' (none shrinks by half in a frame).
+    let mut found = Vec::new();
+    let mut cut = Vec::new();
+    for (window, min_side) in merged_windows(last, width, height, 1.0) {
+        found.extend(search_window(detector, image, window, min_side, &mut cut)?);
+    }
+    let mut still_cut = Vec::new();
+    for (window, min_side) in merged_windows(&cut, width, height, 2.0) {
+        for m in search_window(detector, image, window, min_side, &mut still_cut)? {
+            if !found.iter().any(|f| same(f, &m)) {
+                found.push(m);
+            }
+        }
+    }
+    Ok(found)
+}
+
+/// The windows around `markers` (see [`window_around`], with the growth
+/// times `grow`), overlapping ones merged, each with the smallest side
+/// searched for in it: half the smallest of its markers' (none shrinks by
+/// half in a frame).
+fn merged_windows(markers: &[Marker], width: i32, height: i32, grow: f64) -> Vec<(Rect, f64)> {
     let mut windows: Vec<(Rect, f64)> = Vec::new();
-    for m in last {
-        let (mut window, mut min_side) = (window_around(m, width, height), 0.5 * shortest(m));
+    for m in markers {
+        let (mut window, mut min_side) = (window_around(m, width, height, grow), 0.5 * shortest(m));
         while let Some(j) = windows.iter().position(|w| (w.0 & window).area() > 0) {
             let (other, other_side) = windows.swap_remove(j);
             window |= other;
@@ -262,27 +298,33 @@ fn search_windows(
         }
         windows.push((window, min_side));
     }
+    windows
+}
+
+/// The markers of one window, in image pixels; those its edge cuts go to
+/// `cut` instead.
+fn search_window(
+    detector: &mut Detector,
+    image: &(impl MatTraitConst + opencv::core::ToInputArray),
+    window: Rect,
+    min_side: f64,
+    cut: &mut Vec<Marker>,
+) -> Result<Vec<Marker>> {
+    let (width, height) = (image.cols(), image.rows());
+    let view = Mat::roi(image, window)?;
     let mut found = Vec::new();
-    for &(window, min_side) in &windows {
-        let view = Mat::roi(image, window)?;
-        for mut m in detector.detect_at_least(&view, min_side)? {
-            // A marker at the window's edge may be cut by it: its corners
-            // would not be a full scan's. Search the whole image instead.
-            if !clear_of_edges(&m, window, width, height) {
-                return Ok(None);
-            }
-            let (dx, dy) = (f64::from(window.x), f64::from(window.y));
-            for k in 0..4 {
-                m.corners[2 * k] += dx;
-                m.corners[2 * k + 1] += dy;
-            }
-            m.center[0] += dx;
-            m.center[1] += dy;
-            found.push(m);
+    for mut m in detector.detect_at_least(&view, min_side)? {
+        let clear = clear_of_edges(&m, window, width, height);
+        let (dx, dy) = (f64::from(window.x), f64::from(window.y));
+        for k in 0..4 {
+            m.corners[2 * k] += dx;
+            m.corners[2 * k + 1] += dy;
         }
+        m.center[0] += dx;
+        m.center[1] += dy;
+        if clear { found.push(m) } else { cut.push(m) }
     }
-    let refound = last.iter().all(|old| found.iter().any(|m| same(m, old)));
-    Ok(refound.then_some(found))
+    Ok(found)
 }
 
 /// Pixels a marker found in a window must keep from the window's edges
@@ -327,9 +369,10 @@ fn near(m: &Marker, old: &Marker) -> bool {
 }
 
 /// The window a marker is searched for in the next frame: its bounding box
-/// grown by half its side and the motion allowance, within the image.
-fn window_around(m: &Marker, width: i32, height: i32) -> Rect {
-    let grow = 0.5 * side(m) + MOTION_ALLOWANCE_PX;
+/// grown by `grow` times half its side and the motion allowance, within the
+/// image.
+fn window_around(m: &Marker, width: i32, height: i32, grow: f64) -> Rect {
+    let grow = grow * (0.5 * side(m) + MOTION_ALLOWANCE_PX);
     let xs = [m.corners[0], m.corners[2], m.corners[4], m.corners[6]];
     let ys = [m.corners[1], m.corners[3], m.corners[5], m.corners[7]];
     let min = |v: [f64; 4]| v.iter().copied().fold(f64::INFINITY, f64::min);
@@ -384,11 +427,61 @@ mod tests {
         assert_eq!(schedule(4, 9, false), (2, 7, 0));
     }
 
+    /// A 640x480 white image with DICT_4X4_50 marker `id` (60 px) at `(x, y)`.
+    fn image_with_marker(id: i32, at: Option<(i32, i32)>) -> Mat {
+        let mut image = Mat::new_rows_cols_with_default(
+            480,
+            640,
+            opencv::core::CV_8UC1,
+            opencv::core::Scalar::all(255.0),
+        )
+        .unwrap();
+        if let Some((x, y)) = at {
+            let dict = opencv::aruco::get_predefined_dictionary(
+                opencv::aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50,
+            )
+            .unwrap();
+            let mut code = Mat::default();
+            opencv::aruco::draw_marker(&dict, id, 60, &mut code, 1).unwrap();
+            let mut roi = Mat::roi_mut(&mut image, Rect::new(x, y, 60, 60)).unwrap();
+            code.copy_to(&mut roi).unwrap();
+        }
+        image
+    }
+
+    #[test]
+    fn a_marker_that_jumps_or_goes_costs_no_full_scan_before_its_detections() {
+        let mut detector = Detector::new(true).unwrap();
+        let mut tracker = RegionTracker::new(10, 0);
+        let ids = |found: &[Marker]| found.iter().map(|m| m.id).collect::<Vec<_>>();
+        // First image: searched whole.
+        let (found, search) = tracker
+            .detect(&mut detector, &image_with_marker(7, Some((40, 40))))
+            .unwrap();
+        assert_eq!((ids(&found), search), (vec![7], Search::Full));
+        // It jumps far beyond its window: the look-out finds it in the same
+        // frame, at full resolution in a window of its own.
+        let jumped = image_with_marker(7, Some((500, 380)));
+        let (found, search) = tracker.detect(&mut detector, &jumped).unwrap();
+        assert_eq!((ids(&found), search), (vec![7], Search::Windows));
+        let full = detector.detect(&jumped).unwrap();
+        assert_eq!(found[0].corners, full[0].corners, "the full scan's corners");
+        assert!(!tracker.due(), "nothing missing, no full scan due");
+        // It goes: the frame's detections come from the windows (none), and
+        // the whole image is searched after them.
+        let gone = image_with_marker(7, None);
+        let (found, search) = tracker.detect(&mut detector, &gone).unwrap();
+        assert_eq!((found.len(), search), (0, Search::Windows));
+        assert!(tracker.due());
+        assert!(tracker.catch_up(&mut detector, &gone).unwrap());
+        assert_eq!(tracker.scans(), (2, 2));
+    }
+
     #[test]
     fn windows_grow_by_the_side_and_stay_in_the_image() {
-        let w = window_around(&marker(0, 100.0, 50.0, 40.0), 640, 480);
+        let w = window_around(&marker(0, 100.0, 50.0, 40.0), 640, 480, 1.0);
         assert_eq!(w, Rect::new(56, 6, 128, 128));
-        let edge = window_around(&marker(0, 620.0, 460.0, 30.0), 640, 480);
+        let edge = window_around(&marker(0, 620.0, 460.0, 30.0), 640, 480, 1.0);
         assert!(edge.x + edge.width <= 640 && edge.y + edge.height <= 480);
     }
 

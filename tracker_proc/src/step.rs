@@ -152,20 +152,33 @@ impl Tracker {
         Ok(Tracked::Detections(out))
     }
 
-    /// Makes the periodic full scans due on the frame [`Tracker::step`]
-    /// last tracked (the same header and payload): the stage calls it once
-    /// that frame's detections are published, so that a full scan delays
-    /// no detections. What it finds is searched for from the next frame on.
+    /// Makes the full scans due on the frame [`Tracker::step`] last
+    /// tracked (the same header and payload): periodic ones, and those
+    /// after a marker was not seen anywhere. The stage calls it once that
+    /// frame's detections are published, so that a full scan delays no
+    /// detections. What it finds is searched for from the next frame on.
     /// Without it, the full scans are made in `step`, a period late.
     pub fn catch_up(&mut self, header: &FrameHeader, payload: &[u8]) -> Result<()> {
         if self.last_seq != Some(header.seq) || header.validate(payload.len()).is_err() {
             return Ok(());
         }
         let mut images = payload.chunks_exact(header.image_len());
-        for (camera, image) in self.cameras.iter_mut().zip(&mut images) {
-            camera.catch_up(header, image)?;
+        let (Some(left), Some(right)) = (images.next(), images.next()) else {
+            return Ok(());
+        };
+        let [first, second] = &mut self.cameras;
+        // Both due (both lost a marker): the two scans on two threads.
+        if first.regions.due() && second.regions.due() {
+            let r = std::thread::scope(|s| {
+                let r = s.spawn(|| second.catch_up(header, right));
+                first.catch_up(header, left)?;
+                r.join()
+                    .map_err(|_| anyhow::anyhow!("the right camera's full scan panicked"))?
+            });
+            return r;
         }
-        Ok(())
+        first.catch_up(header, left)?;
+        second.catch_up(header, right)
     }
 
     /// Frames dropped as malformed or out of order.
