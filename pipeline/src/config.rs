@@ -71,6 +71,11 @@ pub struct Config {
     pub look: Look,
     /// Move time between poses of the simulated arm (`sim_arm`), ms.
     pub move_ms: u64,
+    /// Joint-position rate of the simulated arm (`sim_arm`), Hz. The mirror
+    /// stage pairs a frame once a joint state stamped after it has come, so
+    /// the driver's period bounds the frame-to-sample latency.
+    #[serde(default = "default_arm_rate_hz")]
+    pub arm_rate_hz: f64,
     /// Dwell time at each pose, ms.
     pub dwell_ms: u64,
     /// Seed of the simulated poses.
@@ -81,6 +86,12 @@ pub struct Config {
     /// absent: the built-in simulated arm, `sim_arm`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arm_driver: Option<String>,
+}
+
+/// `sim_arm`'s joint-position rate unless the config says: that of a
+/// typical arm controller's state stream (125 Hz to 1 kHz).
+fn default_arm_rate_hz() -> f64 {
+    250.0
 }
 
 /// What the command line may override.
@@ -139,6 +150,13 @@ impl Config {
                 "{}: key fps: {} is not in (0, 1000]",
                 path.display(),
                 config.fps
+            );
+        }
+        if !(config.arm_rate_hz > 0.0 && config.arm_rate_hz <= 1000.0) {
+            bail!(
+                "{}: key arm_rate_hz: {} is not in (0, 1000]",
+                path.display(),
+                config.arm_rate_hz
             );
         }
         Ok(config)
@@ -205,5 +223,11 @@ mod tests {
             "{e}"
         );
         assert!(!e.contains('\n'));
+        let e = load(&format!("{GOOD}arm_rate_hz = 0\n"), Overrides::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.ends_with("key arm_rate_hz: 0 is not in (0, 1000]"), "{e}");
+        let config = load(GOOD, Overrides::default()).unwrap();
+        assert_eq!(config.arm_rate_hz, 250.0, "the default");
     }
 }

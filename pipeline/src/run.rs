@@ -171,6 +171,7 @@ impl Run {
                     .map(shell_words::split)
                     .transpose()?,
                 move_ms: config.move_ms,
+                rate_hz: config.arm_rate_hz,
             },
         ]);
         let arm = StageArgs::Kinematics {

@@ -87,6 +87,8 @@ pub enum StageArgs {
         command: Option<Vec<String>>,
         /// Move time of `sim_arm`, ms.
         move_ms: u64,
+        /// Joint-position rate of `sim_arm`, Hz.
+        rate_hz: f64,
     },
     /// `kinematics_proc`: the pose plan, through the arm driver.
     Kinematics {
@@ -232,11 +234,13 @@ impl StageArgs {
                 rig,
                 command,
                 move_ms,
+                rate_hz,
             } => {
                 flag("rig", path(rig));
                 // The contract of a user's driver is --prefix and --rig only.
                 if command.is_none() {
                     flag("move-ms", move_ms.to_string());
+                    flag("rate-hz", rate_hz.to_string());
                 }
             }
             StageArgs::Kinematics {
@@ -339,17 +343,19 @@ mod tests {
             rig: "r.toml".into(),
             command: None,
             move_ms: 120,
+            rate_hz: 250.0,
         };
         assert_eq!(sim_arm.binary(), "sim_arm");
         assert_eq!(
             sim_arm.argv("p").join(" "),
-            "--prefix p --rig r.toml --move-ms 120"
+            "--prefix p --rig r.toml --move-ms 120 --rate-hz 250"
         );
         // A user's driver: its own words first, then only --prefix and --rig.
         let theirs = StageArgs::ArmDriver {
             rig: "r.toml".into(),
             command: Some(shell_words::split("py 'my driver.py' -v").unwrap()),
             move_ms: 120,
+            rate_hz: 250.0,
         };
         assert_eq!(theirs.program(Path::new("bin")), PathBuf::from("py"));
         assert_eq!(

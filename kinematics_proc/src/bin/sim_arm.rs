@@ -22,8 +22,9 @@ struct Args {
     /// Time of each move, ms.
     #[arg(long, default_value_t = 300)]
     move_ms: u64,
-    /// Joint-position publication rate, Hz.
-    #[arg(long, default_value_t = 100.0)]
+    /// Joint-position publication rate, Hz (that of a typical arm
+    /// controller's state stream).
+    #[arg(long, default_value_t = 250.0)]
     rate_hz: f64,
 }
 
