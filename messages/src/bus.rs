@@ -30,7 +30,7 @@ pub struct BusError {
 }
 
 impl BusError {
-    fn new(context: impl Into<String>) -> Self {
+    pub(crate) fn new(context: impl Into<String>) -> Self {
         Self {
             context: context.into(),
             source: None,

@@ -19,6 +19,7 @@
 //! # Ok::<(), messages::BusError>(())
 //! ```
 
+mod any_port;
 mod bus;
 pub mod journal;
 pub mod stats;
@@ -26,6 +27,7 @@ pub mod topics;
 pub mod trace;
 mod types;
 
+pub use any_port::AnyPublisher;
 pub use bus::{
     Bus, BusError, FramePublisher, FrameSubscriber, OpenServices, Publisher, Subscriber, Wake,
     remove_dead_nodes,

@@ -9,10 +9,9 @@
 
 use std::time::{Duration, Instant};
 
-use messages::topics::{FrameTopic, SmallTopic, TopicId, TopicVisitor};
-use messages::{Bus, BusError, FramePublisher, Publisher};
+use messages::topics::TopicId;
+use messages::{AnyPublisher, Bus};
 
-use crate::channels::Message;
 use crate::reader::Recording;
 
 /// What a replay publishes, named for the stages it lets re-run.
@@ -109,63 +108,13 @@ impl ReplayStats {
     }
 }
 
-/// Publishes one topic's recorded messages.
-trait Republish {
-    fn publish(&self, message: &Message<'_>) -> Result<(), BusError>;
-}
-
-struct SmallRepublisher<T: SmallTopic>(Publisher<T>);
-
-impl<T: SmallTopic> Republish for SmallRepublisher<T> {
-    fn publish(&self, message: &Message<'_>) -> Result<(), BusError> {
-        // Replay asks each message's own topic's publisher.
-        let bytes = message.small_bytes().expect("a small message");
-        self.0.send(bytemuck::pod_read_unaligned(bytes))
-    }
-}
-
-impl Republish for FramePublisher {
-    fn publish(&self, message: &Message<'_>) -> Result<(), BusError> {
-        let Message::Frames(header, pixels) = *message else {
-            unreachable!("replay asks each message's own topic's publisher")
-        };
-        self.publish_as_recorded(header, |left, right| {
-            let (l, r) = pixels.split_at(left.len());
-            left.copy_from_slice(l);
-            right.copy_from_slice(r);
-            Ok::<_, std::convert::Infallible>(true)
-        })?
-        .unwrap_or(true);
-        Ok(())
-    }
-}
-
-/// Creates the publisher of one topic (frames sized for the recording).
-struct Advertise<'a> {
-    bus: &'a Bus,
-    largest_frame_bytes: usize,
-}
-
-impl TopicVisitor for Advertise<'_> {
-    type Output = Result<Box<dyn Republish>, BusError>;
-    fn small<T: SmallTopic>(self) -> Self::Output {
-        Ok(Box::new(SmallRepublisher(self.bus.publisher::<T>()?)))
-    }
-    fn frames<T: FrameTopic>(self) -> Self::Output {
-        Ok(Box::new(
-            self.bus
-                .frame_publisher::<T>(self.largest_frame_bytes.max(1))?,
-        ))
-    }
-}
-
 /// The lossless services of a replay and its publishers, created before
 /// anything else.
 pub struct ReplayBus {
     bus: Bus,
     topics: Vec<TopicId>,
     /// By [`TopicId::index`]; `None` for a topic not replayed.
-    publishers: Vec<Option<Box<dyn Republish>>>,
+    publishers: Vec<Option<AnyPublisher>>,
     _services: messages::OpenServices,
 }
 
@@ -188,12 +137,7 @@ impl ReplayBus {
             .map(|t| {
                 topics
                     .contains(&t)
-                    .then(|| {
-                        t.visit(Advertise {
-                            bus: &bus,
-                            largest_frame_bytes: recording.contents().largest_frame_bytes,
-                        })
-                    })
+                    .then(|| AnyPublisher::new(&bus, t, recording.contents().largest_frame_bytes))
                     .transpose()
             })
             .collect::<Result<_, _>>()?;

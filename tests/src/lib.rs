@@ -6,7 +6,8 @@ use std::process::{Child, Command};
 use std::sync::OnceLock;
 
 /// The stage binaries, for `cargo build` or `cargo run`.
-pub const STAGE_PACKAGES: [&str; 6] = [
+pub const STAGE_PACKAGES: [&str; 7] = [
+    "bridge",
     "camera_proc",
     "tracker_proc",
     "kinematics_proc",

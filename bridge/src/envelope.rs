@@ -1,0 +1,143 @@
+//! How one message crosses the link: a small envelope around the bytes it
+//! has in shared memory, naming its layout so that the receiving side can
+//! refuse what it would misread.
+//!
+//! ```text
+//! magic    4 bytes  "MRB1"
+//! name_len 1 byte
+//! name     name_len bytes   the layout's versioned type name, e.g. mirror.JointState.v1
+//! sent_ns  8 bytes  i64 LE  the sender's CLOCK_MONOTONIC when it sent
+//! len      4 bytes  u32 LE  bytes of the message
+//! message  len bytes        as in shared memory (a frame: header, then both images)
+//! ```
+//!
+//! Nothing from the network is trusted: every field is checked, and a
+//! message whose layout is not this side's is refused with both names.
+
+use messages::topics::{Message, TopicId};
+
+/// The envelope's first bytes; the digit is the envelope's version.
+pub const MAGIC: &[u8; 4] = b"MRB1";
+
+/// Wraps the bytes of a message on `topic`.
+pub fn seal(topic: TopicId, sent_ns: i64, message: &[u8]) -> Vec<u8> {
+    let name = topic.layout().type_name;
+    let mut out = Vec::with_capacity(4 + 1 + name.len() + 8 + 4 + message.len());
+    out.extend_from_slice(MAGIC);
+    // Type names are short ASCII (`mirror.StereoFrame.v2`).
+    out.push(name.len().min(255) as u8);
+    out.extend_from_slice(&name.as_bytes()[..name.len().min(255)]);
+    out.extend_from_slice(&sent_ns.to_le_bytes());
+    out.extend_from_slice(&(message.len() as u32).to_le_bytes());
+    out.extend_from_slice(message);
+    out
+}
+
+/// A message taken out of its envelope and checked.
+#[derive(Debug, Clone, Copy)]
+pub struct Opened<'a> {
+    /// The sender's clock when it sent, ns.
+    pub sent_ns: i64,
+    /// The message, decoded and checked against its layout.
+    pub message: Message<'a>,
+}
+
+/// Opens an envelope that came on `topic`'s key; the error is one line
+/// naming what is wrong.
+pub fn open(topic: TopicId, bytes: &[u8]) -> Result<Opened<'_>, String> {
+    let mut rest = bytes;
+    let mut take = |n: usize, what: &str| -> Result<&[u8], String> {
+        if rest.len() < n {
+            return Err(format!(
+                "{} bytes end before the {what} ({n} bytes)",
+                bytes.len()
+            ));
+        }
+        let (head, tail) = rest.split_at(n);
+        rest = tail;
+        Ok(head)
+    };
+    if take(4, "magic")? != MAGIC {
+        return Err("not a pipeline bridge message (bad magic)".into());
+    }
+    let name_len = take(1, "layout name's length")?[0] as usize;
+    let name = std::str::from_utf8(take(name_len, "layout name")?)
+        .map_err(|_| "the layout name is not UTF-8".to_string())?;
+    let ours = topic.layout().type_name;
+    if name != ours {
+        return Err(format!(
+            "layout mismatch on {}: the sender's is {name}, this side's is {ours}",
+            topic.name()
+        ));
+    }
+    let sent_ns = i64::from_le_bytes(take(8, "send time")?.try_into().expect("8 bytes"));
+    let len = u32::from_le_bytes(take(4, "length")?.try_into().expect("4 bytes")) as usize;
+    let message = take(len, "message")?;
+    if !rest.is_empty() {
+        return Err(format!("{} bytes after the message", rest.len()));
+    }
+    let message = Message::decode(topic, message)
+        .map_err(|e| format!("{} of layout {ours}: {e}", topic.name()))?;
+    Ok(Opened { sent_ns, message })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use messages::JointState;
+
+    fn joint_state() -> JointState {
+        JointState {
+            seq: 7,
+            stamp_ns: 123_456,
+            ..JointState::default()
+        }
+    }
+
+    #[test]
+    fn a_sealed_message_opens_to_the_same_bytes() {
+        let js = joint_state();
+        let bytes = seal(TopicId::JointState, 99, bytemuck::bytes_of(&js));
+        let opened = open(TopicId::JointState, &bytes).unwrap();
+        assert_eq!(opened.sent_ns, 99);
+        assert_eq!(opened.message, Message::JointState(js));
+    }
+
+    #[test]
+    fn every_malformed_envelope_is_refused_in_one_line() {
+        let good = seal(TopicId::JointState, 1, bytemuck::bytes_of(&joint_state()));
+        // Cut anywhere: refused, never a panic.
+        for n in 0..good.len() {
+            let e = open(TopicId::JointState, &good[..n]).unwrap_err();
+            assert!(!e.contains('\n'), "{e}");
+        }
+        let mut extra = good.clone();
+        extra.push(0);
+        assert!(
+            open(TopicId::JointState, &extra)
+                .unwrap_err()
+                .contains("after")
+        );
+        let mut magic = good.clone();
+        magic[0] = b'X';
+        assert!(
+            open(TopicId::JointState, &magic)
+                .unwrap_err()
+                .contains("magic")
+        );
+        // A length that disagrees with the layout's size.
+        let short = seal(TopicId::JointState, 1, &[0u8; 8]);
+        let e = open(TopicId::JointState, &short).unwrap_err();
+        assert!(e.contains("mirror.JointState"), "{e}");
+    }
+
+    #[test]
+    fn another_layout_is_refused_with_both_names() {
+        // A joint state sent where samples are expected: same bytes, other layout.
+        let bytes = seal(TopicId::JointState, 1, bytemuck::bytes_of(&joint_state()));
+        let e = open(TopicId::Samples, &bytes).unwrap_err();
+        let ours = TopicId::Samples.layout().type_name;
+        let theirs = TopicId::JointState.layout().type_name;
+        assert!(e.contains(&ours) && e.contains(&theirs), "{e}");
+    }
+}

@@ -1,0 +1,84 @@
+//! `bridge`: carries pipeline topics between this host and another over
+//! zenoh (see the library's documentation).
+
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{Result, anyhow};
+use bridge::{Counters, Options};
+use clap::Parser;
+use messages::topics::TopicId;
+
+/// Carry pipeline topics between hosts: send topics from this host's shared
+/// memory to a peer bridge over zenoh, and publish what it sends here.
+#[derive(Debug, Parser)]
+#[command(version, about)]
+struct Args {
+    /// Service prefix of the pipeline on this host.
+    #[arg(long)]
+    prefix: String,
+    /// First part of the zenoh keys; both sides must give the same (default
+    /// `mirror/<prefix>`). A second robot on the same network uses another.
+    #[arg(long)]
+    namespace: Option<String>,
+    /// Topics to send, comma-separated (e.g. `frames,joint_state`).
+    #[arg(long, value_delimiter = ',', value_parser = topic)]
+    send: Vec<TopicId>,
+    /// Topics to receive and publish here, comma-separated.
+    #[arg(long, value_delimiter = ',', value_parser = topic)]
+    receive: Vec<TopicId>,
+    /// Zenoh endpoint to listen on (repeatable), e.g. `tcp/0.0.0.0:7447`.
+    #[arg(long)]
+    listen: Vec<String>,
+    /// Zenoh endpoint of the other side (repeatable), e.g. `tcp/10.0.0.2:7447`.
+    #[arg(long)]
+    connect: Vec<String>,
+}
+
+fn topic(name: &str) -> Result<TopicId> {
+    TopicId::from_name(name).ok_or_else(|| {
+        let known: Vec<_> = TopicId::ALL.iter().map(|t| t.name()).collect();
+        anyhow!("no topic {name:?} (topics: {})", known.join(", "))
+    })
+}
+
+fn run(args: Args) -> Result<()> {
+    let options = Options {
+        namespace: args
+            .namespace
+            .unwrap_or_else(|| format!("mirror/{}", args.prefix)),
+        prefix: args.prefix,
+        send: args.send,
+        receive: args.receive,
+        listen: args.listen,
+        connect: args.connect,
+    };
+    let counters = Counters::default();
+    let stop = AtomicBool::new(false);
+    let result = bridge::run(&options, &counters, &stop);
+    let mut stats = messages::stats::StageStats::new("bridge");
+    for t in TopicId::ALL {
+        if options.send.contains(&t) {
+            stats.count(&format!("sent_{}", t.name()), counters.sent(t));
+        }
+        if options.receive.contains(&t) {
+            stats.count(&format!("received_{}", t.name()), counters.received(t));
+        }
+    }
+    stats.count(
+        "refused",
+        counters.refused.load(std::sync::atomic::Ordering::Relaxed),
+    );
+    stats.count(
+        "queue_full",
+        counters
+            .queue_full
+            .load(std::sync::atomic::Ordering::Relaxed),
+    );
+    stats.finish();
+    result
+}
+
+fn main() -> ExitCode {
+    messages::stage_main("bridge", || run(Args::parse()))
+}
