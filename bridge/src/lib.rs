@@ -127,8 +127,8 @@ impl Counters {
 /// Deliveries waiting for the receiving thread at most.
 const RECEIVE_QUEUE: usize = 256;
 
-/// Runs the bridge until SIGINT/SIGTERM, or until `stop` is set (checked
-/// every `tick`).
+/// Runs the bridge until SIGINT/SIGTERM, or until `stop` is set (looked at
+/// every 100 ms).
 pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<()> {
     options.check()?;
     let session = zenoh::open(options.zenoh_config()?)
