@@ -168,10 +168,16 @@ pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<
         subscriptions.push(subscriber);
     }
     drop(deliveries);
-    let done = AtomicBool::new(false);
+    // `done` ends the receiving side when the sending side ends; `failed`
+    // ends the sending side when the receiving side fails.
+    let (done, failed) = (AtomicBool::new(false), AtomicBool::new(false));
     let result = std::thread::scope(|s| {
-        let receiving = s.spawn(|| receive(options, queue, counters, stop, &done));
-        let sent = send(options, &session, counters, stop);
+        let receiving = s.spawn(|| {
+            let result = receive(options, queue, counters, stop, &done);
+            failed.store(result.is_err(), Ordering::Relaxed);
+            result
+        });
+        let sent = send(options, &session, counters, &[stop, &failed]);
         done.store(true, Ordering::Relaxed);
         let received = receiving
             .join()
@@ -246,12 +252,12 @@ impl TopicVisitor for Subscribe<'_> {
     }
 }
 
-/// The sending side: until a signal or `stop`.
+/// The sending side: until a signal or one of `stops`.
 fn send(
     options: &Options,
     session: &zenoh::Session,
     counters: &Counters,
-    stop: &AtomicBool,
+    stops: &[&AtomicBool],
 ) -> Result<()> {
     let bus = Bus::new(&options.prefix, "bridge_send")?;
     let mut taps = Vec::new();
@@ -281,7 +287,7 @@ fn send(
                 Ok(())
             })?;
         }
-        Ok(if stop.load(Ordering::Relaxed) {
+        Ok(if stops.iter().any(|s| s.load(Ordering::Relaxed)) {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
