@@ -3,12 +3,15 @@
 //! refuse what it would misread.
 //!
 //! ```text
-//! magic    4 bytes  "MRB1"
-//! name_len 1 byte
-//! name     name_len bytes   the layout's versioned type name, e.g. mirror.JointState.v1
-//! sent_ns  8 bytes  i64 LE  the sender's CLOCK_MONOTONIC when it sent
-//! len      4 bytes  u32 LE  bytes of the message
-//! message  len bytes        as in shared memory (a frame: header, then both images)
+//! magic      4 bytes  "MRB2"
+//! name_len   1 byte
+//! name       name_len bytes   the layout's versioned type name, e.g. mirror.JointState.v1
+//! sender_len 1 byte
+//! sender     sender_len bytes the sending bridge's zenoh id (hex): whose clock the times are
+//! seq        8 bytes  u64 LE  the sender's count of messages on this topic, from 1
+//! sent_ns    8 bytes  i64 LE  the sender's CLOCK_MONOTONIC when it sent
+//! len        4 bytes  u32 LE  bytes of the message
+//! message    len bytes        as in shared memory (a frame: header, then both images)
 //! ```
 //!
 //! Nothing from the network is trusted: every field is checked, and a
@@ -17,17 +20,35 @@
 use messages::topics::{Message, TopicId};
 
 /// The envelope's first bytes; the digit is the envelope's version.
-pub const MAGIC: &[u8; 4] = b"MRB1";
+pub const MAGIC: &[u8; 4] = b"MRB2";
+
+/// Who sent a message, and which of theirs it is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct From<'a> {
+    /// The sending bridge's zenoh id.
+    pub sender: &'a str,
+    /// Its count of messages on this topic, from 1.
+    pub seq: u64,
+    /// Its clock when it sent, ns.
+    pub sent_ns: i64,
+}
+
+/// Appends a short string with its length (names and ids are short ASCII).
+fn push_short(out: &mut Vec<u8>, s: &str) {
+    let n = s.len().min(255);
+    out.push(n as u8);
+    out.extend_from_slice(&s.as_bytes()[..n]);
+}
 
 /// Wraps the bytes of a message on `topic`.
-pub fn seal(topic: TopicId, sent_ns: i64, message: &[u8]) -> Vec<u8> {
+pub fn seal(topic: TopicId, from: From<'_>, message: &[u8]) -> Vec<u8> {
     let name = topic.layout().type_name;
-    let mut out = Vec::with_capacity(4 + 1 + name.len() + 8 + 4 + message.len());
+    let mut out = Vec::with_capacity(4 + 2 + name.len() + from.sender.len() + 20 + message.len());
     out.extend_from_slice(MAGIC);
-    // Type names are short ASCII (`mirror.StereoFrame.v2`).
-    out.push(name.len().min(255) as u8);
-    out.extend_from_slice(&name.as_bytes()[..name.len().min(255)]);
-    out.extend_from_slice(&sent_ns.to_le_bytes());
+    push_short(&mut out, &name);
+    push_short(&mut out, from.sender);
+    out.extend_from_slice(&from.seq.to_le_bytes());
+    out.extend_from_slice(&from.sent_ns.to_le_bytes());
     out.extend_from_slice(&(message.len() as u32).to_le_bytes());
     out.extend_from_slice(message);
     out
@@ -36,8 +57,8 @@ pub fn seal(topic: TopicId, sent_ns: i64, message: &[u8]) -> Vec<u8> {
 /// A message taken out of its envelope and checked.
 #[derive(Debug, Clone, Copy)]
 pub struct Opened<'a> {
-    /// The sender's clock when it sent, ns.
-    pub sent_ns: i64,
+    /// Who sent it.
+    pub from: From<'a>,
     /// The message, decoded and checked against its layout.
     pub message: Message<'a>,
 }
@@ -70,6 +91,12 @@ pub fn open(topic: TopicId, bytes: &[u8]) -> Result<Opened<'_>, String> {
             topic.name()
         ));
     }
+    let sender_len = take(1, "sender's length")?[0] as usize;
+    let sender = std::str::from_utf8(take(sender_len, "sender")?)
+        .ok()
+        .filter(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_hexdigit()))
+        .ok_or_else(|| "the sender's id is not a zenoh id (hex digits)".to_string())?;
+    let seq = u64::from_le_bytes(take(8, "sequence number")?.try_into().expect("8 bytes"));
     let sent_ns = i64::from_le_bytes(take(8, "send time")?.try_into().expect("8 bytes"));
     let len = u32::from_le_bytes(take(4, "length")?.try_into().expect("4 bytes")) as usize;
     let message = take(len, "message")?;
@@ -78,7 +105,14 @@ pub fn open(topic: TopicId, bytes: &[u8]) -> Result<Opened<'_>, String> {
     }
     let message = Message::decode(topic, message)
         .map_err(|e| format!("{} of layout {ours}: {e}", topic.name()))?;
-    Ok(Opened { sent_ns, message })
+    Ok(Opened {
+        from: From {
+            sender,
+            seq,
+            sent_ns,
+        },
+        message,
+    })
 }
 
 #[cfg(test)]
@@ -94,18 +128,28 @@ mod tests {
         }
     }
 
+    const FROM: From<'static> = From {
+        sender: "a1b2",
+        seq: 3,
+        sent_ns: 99,
+    };
+
     #[test]
     fn a_sealed_message_opens_to_the_same_bytes() {
         let js = joint_state();
-        let bytes = seal(TopicId::JointState, 99, bytemuck::bytes_of(&js));
+        let bytes = seal(TopicId::JointState, FROM, bytemuck::bytes_of(&js));
         let opened = open(TopicId::JointState, &bytes).unwrap();
-        assert_eq!(opened.sent_ns, 99);
+        assert_eq!(opened.from, FROM);
         assert_eq!(opened.message, Message::JointState(js));
     }
 
     #[test]
     fn every_malformed_envelope_is_refused_in_one_line() {
-        let good = seal(TopicId::JointState, 1, bytemuck::bytes_of(&joint_state()));
+        let good = seal(
+            TopicId::JointState,
+            FROM,
+            bytemuck::bytes_of(&joint_state()),
+        );
         // Cut anywhere: refused, never a panic.
         for n in 0..good.len() {
             let e = open(TopicId::JointState, &good[..n]).unwrap_err();
@@ -125,8 +169,19 @@ mod tests {
                 .unwrap_err()
                 .contains("magic")
         );
+        // A sender that is not an id.
+        let odd = From {
+            sender: "a/b",
+            ..FROM
+        };
+        let bytes = seal(TopicId::JointState, odd, bytemuck::bytes_of(&joint_state()));
+        assert!(
+            open(TopicId::JointState, &bytes)
+                .unwrap_err()
+                .contains("sender")
+        );
         // A length that disagrees with the layout's size.
-        let short = seal(TopicId::JointState, 1, &[0u8; 8]);
+        let short = seal(TopicId::JointState, FROM, &[0u8; 8]);
         let e = open(TopicId::JointState, &short).unwrap_err();
         assert!(e.contains("mirror.JointState"), "{e}");
     }
@@ -134,7 +189,11 @@ mod tests {
     #[test]
     fn another_layout_is_refused_with_both_names() {
         // A joint state sent where samples are expected: same bytes, other layout.
-        let bytes = seal(TopicId::JointState, 1, bytemuck::bytes_of(&joint_state()));
+        let bytes = seal(
+            TopicId::JointState,
+            FROM,
+            bytemuck::bytes_of(&joint_state()),
+        );
         let e = open(TopicId::Samples, &bytes).unwrap_err();
         let ours = TopicId::Samples.layout().type_name;
         let theirs = TopicId::JointState.layout().type_name;

@@ -10,26 +10,37 @@
 //! size, another layout, a frame whose header disagrees with its pixels)
 //! is refused, counted and logged, never published.
 //!
-//! Two threads: the sending one sleeps on the subscribers' events and puts
+//! Stamps cross onto the receiving host's clock: each side answers round
+//! trips on its [`clock`] key, and the receiving side moves every message's
+//! times by the offset it estimates from them (see [`clock`]).
+//!
+//! Three threads: the sending one sleeps on the subscribers' events and puts
 //! each message on the link; the receiving one takes zenoh's deliveries
-//! from a bounded queue and publishes them. Small messages are sent
-//! reliably (zenoh blocks rather than drops them when the link is
-//! congested); frames are dropped when it is.
+//! from a bounded queue, checks them, moves their times and publishes them;
+//! the clock one keeps the offsets to the senders fresh. Small messages are
+//! sent reliably (zenoh blocks rather than drops them when the link is
+//! congested); frames are dropped when it is. A topic is taken from shared
+//! memory only once a receiver of it is on the link, so that a stage
+//! waiting for its subscribers waits for the other side too.
 
+pub mod clock;
 pub mod envelope;
 
+use std::cell::Cell;
+use std::collections::HashMap;
 use std::ops::ControlFlow;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::Duration;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use messages::topics::{FrameTopic, SmallTopic, TopicId, TopicVisitor};
-use messages::{
-    AnyPublisher, Bus, BusError, FrameHeader, FrameSubscriber, Rejections, Subscriber, now_ns,
-};
+use messages::stats::StageStats;
+use messages::topics::TopicId;
+use messages::{AnyPublisher, AnySubscriber, Bus, Rejections, now_ns};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
+
+use crate::clock::{Estimator, Offset, RoundTrip};
 
 /// Where the link goes and what crosses it.
 #[derive(Debug, Clone)]
@@ -76,6 +87,11 @@ impl Options {
         format!("{}/{}", self.namespace, topic.name())
     }
 
+    /// The zenoh key on which the bridge `zid` answers round trips.
+    pub fn clock_key(&self, zid: &str) -> String {
+        format!("{}/_clock/{zid}", self.namespace)
+    }
+
     /// The zenoh configuration: a peer at the given endpoints, without
     /// multicast scouting (the endpoints are explicit, and a robot's network
     /// should not join whatever zenoh peers it hears).
@@ -95,37 +111,107 @@ impl Options {
     }
 }
 
-/// What a bridge did, per topic (by [`TopicId::index`]).
-#[derive(Debug, Default)]
+/// What a bridge did, per topic (by [`TopicId::index`]), and its latencies.
 pub struct Counters {
     /// Messages put on the link.
     pub sent: [AtomicU64; TopicId::COUNT],
+    /// Of those, messages put while no receiver was on the link (lost).
+    pub unheard: [AtomicU64; TopicId::COUNT],
     /// Messages received and published here.
     pub received: [AtomicU64; TopicId::COUNT],
-    /// Messages from the link refused (they did not open).
+    /// Messages the sender numbered but that never came (gaps in its
+    /// sequence numbers: a cut link, a full link or queue).
+    pub lost: [AtomicU64; TopicId::COUNT],
+    /// Messages from the link refused (they did not open, came out of
+    /// order, or their stamps cannot be).
     pub refused: AtomicU64,
     /// Frames dropped because the receiving queue was full.
     pub queue_full: AtomicU64,
+    /// Latencies: `link` (sent there to received here, on this clock) and
+    /// `clock_uncertainty` (of the offset each received message was moved by).
+    pub stats: Mutex<StageStats>,
+}
+
+impl Default for Counters {
+    fn default() -> Self {
+        Self {
+            sent: Default::default(),
+            unheard: Default::default(),
+            received: Default::default(),
+            lost: Default::default(),
+            refused: AtomicU64::new(0),
+            queue_full: AtomicU64::new(0),
+            stats: Mutex::new(StageStats::new("bridge")),
+        }
+    }
 }
 
 impl Counters {
-    fn add(slot: &AtomicU64) {
-        slot.fetch_add(1, Ordering::Relaxed);
+    fn add(slot: &AtomicU64, n: u64) {
+        slot.fetch_add(n, Ordering::Relaxed);
+    }
+
+    fn get(slots: &[AtomicU64; TopicId::COUNT], topic: TopicId) -> u64 {
+        slots[topic.index()].load(Ordering::Relaxed)
     }
 
     /// Messages sent on `topic`.
     pub fn sent(&self, topic: TopicId) -> u64 {
-        self.sent[topic.index()].load(Ordering::Relaxed)
+        Self::get(&self.sent, topic)
+    }
+
+    /// Messages sent on `topic` while no receiver was there.
+    pub fn unheard(&self, topic: TopicId) -> u64 {
+        Self::get(&self.unheard, topic)
     }
 
     /// Messages received on `topic`.
     pub fn received(&self, topic: TopicId) -> u64 {
-        self.received[topic.index()].load(Ordering::Relaxed)
+        Self::get(&self.received, topic)
+    }
+
+    /// Messages on `topic` that the sender numbered and never came.
+    pub fn lost(&self, topic: TopicId) -> u64 {
+        Self::get(&self.lost, topic)
+    }
+
+    /// The stage stats with every counter of `options`' topics added.
+    pub fn into_stats(self, options: &Options) -> StageStats {
+        let mut stats = self.stats.into_inner().unwrap_or_else(|p| p.into_inner());
+        for t in TopicId::ALL {
+            let name = t.name();
+            if options.send.contains(&t) {
+                stats.count(&format!("sent_{name}"), Self::get(&self.sent, t));
+                stats.count(&format!("unheard_{name}"), Self::get(&self.unheard, t));
+            }
+            if options.receive.contains(&t) {
+                stats.count(&format!("received_{name}"), Self::get(&self.received, t));
+                stats.count(&format!("lost_{name}"), Self::get(&self.lost, t));
+            }
+        }
+        stats.count("refused", self.refused.load(Ordering::Relaxed));
+        stats.count("queue_full", self.queue_full.load(Ordering::Relaxed));
+        stats
     }
 }
 
 /// Deliveries waiting for the receiving thread at most.
 const RECEIVE_QUEUE: usize = 256;
+
+/// How often the sending side looks at `stop`, and the receiving side at
+/// whether the sending side has ended.
+const TICK: Duration = Duration::from_millis(100);
+
+/// How often the clock thread makes a round trip to each sender: 16 of them
+/// (the estimator's window) span 4 s.
+const CLOCK_EVERY: Duration = Duration::from_millis(250);
+
+/// How long a round trip may take before it counts as unanswered.
+const ROUND_TRIP_WITHIN: Duration = Duration::from_millis(500);
+
+/// How far past this host's clock (after the offset and its uncertainty) a
+/// received stamp may be: a stamp is made before its message is sent.
+const STAMP_SLACK_NS: i64 = 20_000_000;
 
 /// Runs the bridge until SIGINT/SIGTERM, or until `stop` is set (looked at
 /// every 100 ms).
@@ -134,8 +220,9 @@ pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<
     let session = zenoh::open(options.zenoh_config()?)
         .wait()
         .map_err(|e| anyhow::anyhow!("opening the zenoh session: {e}"))?;
+    let zid = session.zid().to_string();
     tracing::info!(
-        zid = %session.zid(),
+        zid,
         listen = ?options.listen,
         connect = ?options.connect,
         namespace = options.namespace,
@@ -143,6 +230,21 @@ pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<
         receive = ?options.receive.iter().map(|t| t.name()).collect::<Vec<_>>(),
         "bridge up"
     );
+    let clock_answers = session
+        .declare_queryable(options.clock_key(&zid))
+        .callback(|query| {
+            let arrived = now_ns();
+            let mut times = [0u8; 16];
+            times[..8].copy_from_slice(&arrived.to_le_bytes());
+            times[8..].copy_from_slice(&now_ns().to_le_bytes());
+            if let Err(e) = query.reply(query.key_expr().clone(), times.to_vec()).wait() {
+                tracing::debug!("answering a round trip: {e}");
+            }
+        })
+        .wait()
+        .map_err(|e| {
+            anyhow::anyhow!("answering round trips on {}: {e}", options.clock_key(&zid))
+        })?;
     let (deliveries, queue) = crossbeam_channel::bounded::<(TopicId, Vec<u8>)>(RECEIVE_QUEUE);
     let queue_full = Arc::new(AtomicU64::new(0));
     let mut subscriptions = Vec::new();
@@ -168,26 +270,34 @@ pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<
         subscriptions.push(subscriber);
     }
     drop(deliveries);
-    // `done` ends the receiving side when the sending side ends; `failed`
-    // ends the sending side when the receiving side fails.
+    let clocks = Clocks {
+        session: &session,
+        options,
+        senders: Mutex::new(HashMap::new()),
+    };
+    // `done` ends the receiving and clock sides when the sending side ends;
+    // `failed` ends the sending side when the receiving side fails.
     let (done, failed) = (AtomicBool::new(false), AtomicBool::new(false));
     let result = std::thread::scope(|s| {
         let receiving = s.spawn(|| {
-            let result = receive(options, queue, counters, stop, &done);
+            let result = receive(options, queue, counters, &clocks, &[stop, &done]);
             failed.store(result.is_err(), Ordering::Relaxed);
             result
         });
-        let sent = send(options, &session, counters, &[stop, &failed]);
+        if !options.receive.is_empty() {
+            s.spawn(|| clocks.keep(&[stop, &done, &failed]));
+        }
+        let sent = send(options, &session, &zid, counters, &[stop, &failed]);
         done.store(true, Ordering::Relaxed);
         let received = receiving
             .join()
             .map_err(|_| anyhow::anyhow!("the receiving thread panicked"))?;
         sent.and(received)
     });
-    counters
-        .queue_full
-        .store(queue_full.load(Ordering::Relaxed), Ordering::Relaxed);
+    Counters::add(&counters.queue_full, queue_full.load(Ordering::Relaxed));
+    clocks.log("at exit");
     drop(subscriptions);
+    drop(clock_answers);
     session
         .close()
         .wait()
@@ -195,60 +305,106 @@ pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<
     result
 }
 
-/// A subscription to one topic that sends what it takes.
-trait Tap {
-    fn listener(&self) -> &iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service>;
-    /// Calls `send` with each waiting message's bytes; returns how many.
-    fn drain(&self, send: &mut dyn FnMut(&[u8]) -> Result<()>) -> Result<usize>;
+fn any_set(flags: &[&AtomicBool]) -> bool {
+    flags.iter().any(|f| f.load(Ordering::Relaxed))
 }
 
-struct SmallTap<T: SmallTopic>(Subscriber<T>);
+/// The offsets to the clocks of the bridges that send here.
+struct Clocks<'a> {
+    session: &'a zenoh::Session,
+    options: &'a Options,
+    /// By sender's zenoh id.
+    senders: Mutex<HashMap<String, Estimator>>,
+}
 
-impl<T: SmallTopic> Tap for SmallTap<T> {
-    fn listener(&self) -> &iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service> {
-        self.0.listener()
+impl Clocks<'_> {
+    /// One round trip to `zid`, if it answers in time.
+    fn round_trip(&self, zid: &str) -> Option<RoundTrip> {
+        let t1 = now_ns();
+        let replies = self
+            .session
+            .get(self.options.clock_key(zid))
+            .timeout(ROUND_TRIP_WITHIN)
+            .wait()
+            .ok()?;
+        let reply = replies.recv().ok()?;
+        let t4 = now_ns();
+        let payload = reply.result().ok()?.payload().to_bytes();
+        let times: &[u8; 16] = payload.as_ref().try_into().ok()?;
+        let time = |k: usize| i64::from_le_bytes(times[k..k + 8].try_into().expect("8 bytes"));
+        Some(RoundTrip {
+            t1,
+            t2: time(0),
+            t3: time(8),
+            t4,
+        })
     }
-    fn drain(&self, send: &mut dyn FnMut(&[u8]) -> Result<()>) -> Result<usize> {
-        let mut n = 0;
-        while let Some(m) = self.0.receive()? {
-            send(bytemuck::bytes_of(&m))?;
-            n += 1;
+
+    fn add(&self, zid: &str, trip: RoundTrip) {
+        let mut senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
+        senders.entry(zid.to_string()).or_default().add(trip);
+    }
+
+    fn estimate(&self, zid: &str) -> Option<Offset> {
+        let senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
+        senders.get(zid)?.estimate(now_ns())
+    }
+
+    /// The offset to the clock of `zid`; a sender not heard from before is
+    /// asked a few round trips first.
+    fn offset(&self, zid: &str) -> Option<Offset> {
+        if let Some(o) = self.estimate(zid) {
+            return Some(o);
         }
-        Ok(n)
-    }
-}
-
-struct FrameTap(FrameSubscriber);
-
-impl Tap for FrameTap {
-    fn listener(&self) -> &iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service> {
-        self.0.listener()
-    }
-    fn drain(&self, send: &mut dyn FnMut(&[u8]) -> Result<()>) -> Result<usize> {
-        let mut n = 0;
-        // The one copy out of shared memory a network hop needs.
-        while let Some(bytes) = self.0.receive_with(|header, payload| {
-            let mut bytes = Vec::with_capacity(size_of::<FrameHeader>() + payload.len());
-            bytes.extend_from_slice(bytemuck::bytes_of(header));
-            bytes.extend_from_slice(payload);
-            bytes
-        })? {
-            send(&bytes)?;
-            n += 1;
+        for _ in 0..4 {
+            if let Some(trip) = self.round_trip(zid) {
+                self.add(zid, trip);
+            }
         }
-        Ok(n)
+        let o = self.estimate(zid)?;
+        tracing::info!(
+            sender = zid,
+            ahead_s = o.ahead_ns as f64 * 1e-9,
+            uncertainty_us = o.uncertainty_ns as f64 * 1e-3,
+            "clock of a new sender"
+        );
+        Some(o)
     }
-}
 
-struct Subscribe<'a>(&'a Bus);
-
-impl TopicVisitor for Subscribe<'_> {
-    type Output = Result<Box<dyn Tap>, BusError>;
-    fn small<T: SmallTopic>(self) -> Self::Output {
-        Ok(Box::new(SmallTap(self.0.subscriber::<T>()?)))
+    /// Keeps every known sender's offset fresh until one of `stops`.
+    fn keep(&self, stops: &[&AtomicBool]) {
+        let mut logged = Instant::now();
+        while !any_set(stops) {
+            let zids: Vec<String> = {
+                let senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
+                senders.keys().cloned().collect()
+            };
+            for zid in zids {
+                if let Some(trip) = self.round_trip(&zid) {
+                    self.add(&zid, trip);
+                }
+            }
+            if logged.elapsed() > Duration::from_secs(30) {
+                self.log("now");
+                logged = Instant::now();
+            }
+            std::thread::sleep(CLOCK_EVERY);
+        }
     }
-    fn frames<T: FrameTopic>(self) -> Self::Output {
-        Ok(Box::new(FrameTap(self.0.frame_subscriber::<T>()?)))
+
+    fn log(&self, when: &str) {
+        let senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
+        for (zid, e) in senders.iter() {
+            if let Some(o) = e.estimate(now_ns()) {
+                tracing::info!(
+                    sender = zid,
+                    ahead_s = o.ahead_ns as f64 * 1e-9,
+                    uncertainty_us = o.uncertainty_ns as f64 * 1e-3,
+                    refused_round_trips = e.refused,
+                    "clock offset {when}"
+                );
+            }
+        }
     }
 }
 
@@ -256,13 +412,13 @@ impl TopicVisitor for Subscribe<'_> {
 fn send(
     options: &Options,
     session: &zenoh::Session,
+    zid: &str,
     counters: &Counters,
     stops: &[&AtomicBool],
 ) -> Result<()> {
     let bus = Bus::new(&options.prefix, "bridge_send")?;
-    let mut taps = Vec::new();
+    let mut publishers = Vec::new();
     for &topic in &options.send {
-        let tap = topic.visit(Subscribe(&bus))?;
         let congestion = if topic.carries_frames() {
             CongestionControl::Drop
         } else {
@@ -273,21 +429,53 @@ fn send(
             .congestion_control(congestion)
             .wait()
             .map_err(|e| anyhow::anyhow!("publishing {}: {e}", options.key(topic)))?;
-        taps.push((topic, tap, publisher));
+        publishers.push((topic, publisher));
     }
-    let listeners: Vec<_> = taps.iter().map(|(_, tap, _)| tap.listener()).collect();
+    let heard = |p: &zenoh::pubsub::Publisher<'_>| {
+        p.matching_status()
+            .wait()
+            .is_ok_and(|status| status.matching())
+    };
+    // Nothing is taken from shared memory before someone receives it.
+    let mut waiting_since = Instant::now();
+    while let Some((topic, _)) = publishers.iter().find(|(_, p)| !heard(p)) {
+        if any_set(stops) || !bus.sleep(Duration::from_millis(10)) {
+            return Ok(());
+        }
+        if waiting_since.elapsed() > Duration::from_secs(10) {
+            tracing::info!("still waiting for a receiver of {}", options.key(*topic));
+            waiting_since = Instant::now();
+        }
+    }
+    let mut taps = Vec::new();
+    for (topic, publisher) in publishers {
+        taps.push((AnySubscriber::new(&bus, topic)?, publisher, Cell::new(0u64)));
+    }
+    if !taps.is_empty() {
+        tracing::info!("every sent topic has a receiver: sending");
+    }
+    let listeners: Vec<_> = taps.iter().map(|(tap, ..)| tap.listener()).collect();
     bus.wake()?.run(&listeners, Some(TICK), || -> Result<_> {
-        for (topic, tap, publisher) in &taps {
-            tap.drain(&mut |bytes| {
+        for (tap, publisher, seq) in &taps {
+            let topic = tap.topic();
+            while let Some(taken) = tap.take()? {
+                seq.set(seq.get() + 1);
+                let from = envelope::From {
+                    sender: zid,
+                    seq: seq.get(),
+                    sent_ns: now_ns(),
+                };
+                if !heard(publisher) {
+                    Counters::add(&counters.unheard[topic.index()], 1);
+                }
                 publisher
-                    .put(envelope::seal(*topic, now_ns(), bytes))
+                    .put(envelope::seal(topic, from, &taken.bytes))
                     .wait()
                     .map_err(|e| anyhow::anyhow!("sending on {}: {e}", topic.name()))?;
-                Counters::add(&counters.sent[topic.index()]);
-                Ok(())
-            })?;
+                Counters::add(&counters.sent[topic.index()], 1);
+            }
         }
-        Ok(if stops.iter().any(|s| s.load(Ordering::Relaxed)) {
+        Ok(if any_set(stops) {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
@@ -295,36 +483,35 @@ fn send(
     })
 }
 
-/// How often the sending side looks at `stop`, and the receiving side at
-/// whether the sending side has ended.
-const TICK: Duration = Duration::from_millis(100);
-
-/// The receiving side: until the sending side ends (`done`).
+/// The receiving side: until one of `stops`.
 fn receive(
     options: &Options,
     queue: crossbeam_channel::Receiver<(TopicId, Vec<u8>)>,
     counters: &Counters,
-    stop: &AtomicBool,
-    done: &AtomicBool,
+    clocks: &Clocks<'_>,
+    stops: &[&AtomicBool],
 ) -> Result<()> {
     let bus = Bus::new(&options.prefix, "bridge_receive")?;
     // Publishers made as their topics' first messages come (a frame
     // publisher is sized by its first frame).
     let mut publishers: Vec<Option<AnyPublisher>> = (0..TopicId::COUNT).map(|_| None).collect();
+    // The last sequence number from each sender on each topic.
+    let mut last: HashMap<(String, TopicId), u64> = HashMap::new();
     let mut rejections = Rejections::default();
-    let mut seq = 0u64;
-    while !(done.load(Ordering::Relaxed) || stop.load(Ordering::Relaxed)) {
+    let mut n = 0u64;
+    while !any_set(stops) {
         let (topic, bytes) = match queue.recv_timeout(TICK) {
             Ok(delivery) => delivery,
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => continue,
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
         };
-        seq += 1;
-        let opened = match envelope::open(topic, &bytes) {
-            Ok(opened) => opened,
+        n += 1;
+        let checked = admit(topic, &bytes, &mut last, clocks, counters);
+        let mut message = match checked {
+            Ok(message) => message,
             Err(why) => {
-                Counters::add(&counters.refused);
-                rejections.reject("message from the link", seq, &why);
+                Counters::add(&counters.refused, 1);
+                rejections.reject("message from the link", n, &why);
                 continue;
             }
         };
@@ -335,8 +522,69 @@ fn receive(
                     .with_context(|| format!("publishing {} here", topic.name()))?,
             ),
         };
-        publisher.publish(&opened.message)?;
-        Counters::add(&counters.received[topic.index()]);
+        publisher.publish(&message.take())?;
+        Counters::add(&counters.received[topic.index()], 1);
     }
     Ok(())
+}
+
+/// A received message ready to publish.
+struct Admitted<'a>(Option<messages::topics::Message<'a>>);
+
+impl<'a> Admitted<'a> {
+    fn take(&mut self) -> messages::topics::Message<'a> {
+        self.0.take().expect("taken once")
+    }
+}
+
+/// Opens an envelope, checks its order and stamps, counts what the sender
+/// numbered and never came, and moves the message's times onto this host's
+/// clock; the error is one line naming what is wrong.
+fn admit<'a>(
+    topic: TopicId,
+    bytes: &'a [u8],
+    last: &mut HashMap<(String, TopicId), u64>,
+    clocks: &Clocks<'_>,
+    counters: &Counters,
+) -> Result<Admitted<'a>, String> {
+    let opened = envelope::open(topic, bytes)?;
+    let from = opened.from;
+    let seen = last.entry((from.sender.to_string(), topic)).or_insert(0);
+    if from.seq <= *seen {
+        return Err(format!(
+            "{} message {} from {} after its message {} (repeated or out of order)",
+            topic.name(),
+            from.seq,
+            from.sender,
+            seen
+        ));
+    }
+    // The first message heard from a sender sets where its count starts.
+    if *seen > 0 {
+        Counters::add(&counters.lost[topic.index()], from.seq - *seen - 1);
+    }
+    *seen = from.seq;
+    let offset = clocks.offset(from.sender).ok_or_else(|| {
+        format!(
+            "no clock offset to {}: it does not answer round trips",
+            from.sender
+        )
+    })?;
+    let mut message = opened.message;
+    message.shift_clock(offset.ahead_ns.saturating_neg());
+    let now = now_ns();
+    let ahead = message.stamp_ns().saturating_sub(now);
+    if ahead > offset.uncertainty_ns.saturating_add(STAMP_SLACK_NS) {
+        return Err(format!(
+            "{} stamp {:.3} s ahead of this host's clock (offset uncertainty {:.0} us)",
+            topic.name(),
+            ahead as f64 * 1e-9,
+            offset.uncertainty_ns as f64 * 1e-3
+        ));
+    }
+    let sent_here = from.sent_ns.saturating_sub(offset.ahead_ns);
+    let mut stats = counters.stats.lock().unwrap_or_else(|p| p.into_inner());
+    stats.record("link", now.saturating_sub(sent_here));
+    stats.record("clock_uncertainty", offset.uncertainty_ns);
+    Ok(Admitted(Some(message)))
 }

@@ -56,26 +56,7 @@ fn run(args: Args) -> Result<()> {
     let counters = Counters::default();
     let stop = AtomicBool::new(false);
     let result = bridge::run(&options, &counters, &stop);
-    let mut stats = messages::stats::StageStats::new("bridge");
-    for t in TopicId::ALL {
-        if options.send.contains(&t) {
-            stats.count(&format!("sent_{}", t.name()), counters.sent(t));
-        }
-        if options.receive.contains(&t) {
-            stats.count(&format!("received_{}", t.name()), counters.received(t));
-        }
-    }
-    stats.count(
-        "refused",
-        counters.refused.load(std::sync::atomic::Ordering::Relaxed),
-    );
-    stats.count(
-        "queue_full",
-        counters
-            .queue_full
-            .load(std::sync::atomic::Ordering::Relaxed),
-    );
-    stats.finish();
+    counters.into_stats(&options).finish();
     result
 }
 

@@ -1,8 +1,12 @@
 //! Ports for a topic known only at run time ([`TopicId`]): what replay and
-//! the bridge between hosts publish decoded messages of any topic with.
+//! the bridge between hosts publish decoded messages of any topic with, and
+//! what the recorder and the bridge take every message of a topic with.
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::prelude::ipc;
 
 use crate::topics::{FrameTopic, Message, SmallTopic, TopicId, TopicVisitor};
-use crate::{Bus, BusError, FramePublisher, Publisher};
+use crate::{Bus, BusError, FrameHeader, FramePublisher, FrameSubscriber, Publisher, Subscriber};
 
 trait Republish {
     fn publish(&self, message: &Message<'_>) -> Result<(), BusError>;
@@ -93,5 +97,98 @@ impl AnyPublisher {
     /// Publishes `message`, which must be of this publisher's topic.
     pub fn publish(&self, message: &Message<'_>) -> Result<(), BusError> {
         self.port.publish(message)
+    }
+}
+
+/// One message taken by an [`AnySubscriber`], copied out of shared memory.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Taken {
+    /// The message's stamp (CLOCK_MONOTONIC ns).
+    pub stamp_ns: i64,
+    /// A frame's sequence number (`None` for a small message).
+    pub frame_seq: Option<u64>,
+    /// Its bytes as laid out in shared memory (a frame: its header, then
+    /// both images), what [`Message::decode`] reads.
+    pub bytes: Vec<u8>,
+}
+
+trait Take {
+    fn listener(&self) -> &Listener<ipc::Service>;
+    fn take(&self) -> Result<Option<Taken>, BusError>;
+}
+
+impl<T: SmallTopic> Take for Subscriber<T> {
+    fn listener(&self) -> &Listener<ipc::Service> {
+        Subscriber::listener(self)
+    }
+    fn take(&self) -> Result<Option<Taken>, BusError> {
+        Ok(self.receive()?.map(|m| Taken {
+            stamp_ns: T::stamp_ns(&m),
+            frame_seq: None,
+            bytes: bytemuck::bytes_of(&m).to_vec(),
+        }))
+    }
+}
+
+impl Take for FrameSubscriber {
+    fn listener(&self) -> &Listener<ipc::Service> {
+        FrameSubscriber::listener(self)
+    }
+    fn take(&self) -> Result<Option<Taken>, BusError> {
+        // The one copy out of shared memory that a file or a network needs.
+        self.receive_with(|header, payload| {
+            let mut bytes = Vec::with_capacity(size_of::<FrameHeader>() + payload.len());
+            bytes.extend_from_slice(bytemuck::bytes_of(header));
+            bytes.extend_from_slice(payload);
+            Taken {
+                stamp_ns: header.stamp_ns,
+                frame_seq: Some(header.seq),
+                bytes,
+            }
+        })
+    }
+}
+
+struct Subscribe<'a>(&'a Bus);
+
+impl TopicVisitor for Subscribe<'_> {
+    type Output = Result<Box<dyn Take>, BusError>;
+    fn small<T: SmallTopic>(self) -> Self::Output {
+        Ok(Box::new(self.0.subscriber::<T>()?))
+    }
+    fn frames<T: FrameTopic>(self) -> Self::Output {
+        Ok(Box::new(self.0.frame_subscriber::<T>()?))
+    }
+}
+
+/// A subscriber to one topic chosen at run time, taking each message as
+/// its bytes.
+pub struct AnySubscriber {
+    topic: TopicId,
+    port: Box<dyn Take>,
+}
+
+impl AnySubscriber {
+    /// A subscriber to `topic` on `bus`.
+    pub fn new(bus: &Bus, topic: TopicId) -> Result<Self, BusError> {
+        Ok(Self {
+            topic,
+            port: topic.visit(Subscribe(bus))?,
+        })
+    }
+
+    /// Its topic.
+    pub fn topic(&self) -> TopicId {
+        self.topic
+    }
+
+    /// The listener to wake on.
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        self.port.listener()
+    }
+
+    /// The oldest waiting message, if any.
+    pub fn take(&self) -> Result<Option<Taken>, BusError> {
+        self.port.take()
     }
 }

@@ -98,6 +98,12 @@ impl Bus {
         self
     }
 
+    /// Sleeps for `period`; `false` if SIGINT or SIGTERM asked the process
+    /// to stop (for loops that wait without a [`Wake`]).
+    pub fn sleep(&self, period: Duration) -> bool {
+        self.node.wait(period).is_ok()
+    }
+
     /// The pipeline's prefix.
     pub fn prefix(&self) -> &str {
         &self.prefix

@@ -27,7 +27,7 @@ pub mod topics;
 pub mod trace;
 mod types;
 
-pub use any_port::AnyPublisher;
+pub use any_port::{AnyPublisher, AnySubscriber, Taken};
 pub use bus::{
     Bus, BusError, FramePublisher, FrameSubscriber, OpenServices, Publisher, Subscriber, Wake,
     remove_dead_nodes,

@@ -271,6 +271,7 @@ mod tests {
         // and the 30 ms asleep is not counted.
         assert!(steps.p50_ms > 5.0 && steps.p50_ms < 25.0, "{steps:?}");
         assert!(cpu.process_ms >= 5.0 * 5.0, "{cpu:?}");
-        assert!(cpu.wall_ms >= 250.0 && cpu.core_share < 1.0, "{cpu:?}");
+        // (Other tests of this process may run beside it: no upper bound.)
+        assert!(cpu.wall_ms >= 250.0 && cpu.core_share > 0.0, "{cpu:?}");
     }
 }

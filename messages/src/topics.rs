@@ -299,6 +299,15 @@ macro_rules! topic_table {
                 }
             }
 
+            /// Moves every time it holds by `by_ns` (see [`crate::ShiftClock`]).
+            pub fn shift_clock(&mut self, by_ns: i64) {
+                use crate::ShiftClock;
+                match self {
+                    Message::$frames(h, _) => h.shift_clock(by_ns),
+                    $(Message::$id(m) => m.shift_clock(by_ns),)*
+                }
+            }
+
             /// The message stamp (CLOCK_MONOTONIC ns).
             pub fn stamp_ns(&self) -> i64 {
                 match self {
@@ -360,6 +369,9 @@ mod tests {
         assert_eq!(decoded.to_bytes(), bytes);
         assert_eq!(decoded.stamp_ns(), 42);
         assert_eq!(decoded.topic(), TopicId::JointState);
+        let mut shifted = decoded;
+        shifted.shift_clock(-40);
+        assert_eq!(shifted.stamp_ns(), 2);
         let err = Message::decode(TopicId::Detections, bytes).unwrap_err();
         assert!(err.contains("expected"), "{err}");
         assert_eq!(
@@ -387,6 +399,13 @@ mod tests {
                 assert_eq!(h, header);
                 assert_eq!(pixels.len(), 16);
             }
+            other => panic!("{other:?}"),
+        }
+        let mut shifted = Message::decode(TopicId::Frames, &bytes).unwrap();
+        shifted.shift_clock(1000);
+        match shifted {
+            // An unknown time (0) stays unknown.
+            Message::Frames(h, _) => assert_eq!((h.stamp_ns, h.published_ns), (1005, 0)),
             other => panic!("{other:?}"),
         }
         bytes.pop();

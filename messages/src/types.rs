@@ -546,3 +546,53 @@ const _: () = {
     assert!(size_of::<JointPositions>() == 8 * 2 + 4 * 2 + 8 * MAX_JOINTS);
     assert!(size_of::<PoseGoal>() == 8 * 3 + 4 * 4 + 8 * MAX_JOINTS);
 };
+
+/// Moving a message's times onto another host's clock: what the bridge
+/// between hosts does to every message it receives.
+pub trait ShiftClock {
+    /// Adds `by_ns` to every time the message holds. A time of 0 means
+    /// "not known" and stays 0; the sum saturates (bytes from a network may
+    /// hold anything).
+    fn shift_clock(&mut self, by_ns: i64);
+}
+
+fn shift(t: &mut i64, by_ns: i64) {
+    if *t != 0 {
+        *t = t.saturating_add(by_ns);
+    }
+}
+
+impl ShiftClock for FrameHeader {
+    fn shift_clock(&mut self, by_ns: i64) {
+        shift(&mut self.stamp_ns, by_ns);
+        shift(&mut self.published_ns, by_ns);
+    }
+}
+
+impl ShiftClock for StereoDetections {
+    fn shift_clock(&mut self, by_ns: i64) {
+        shift(&mut self.stamp_ns, by_ns);
+        shift(&mut self.frame_published_ns, by_ns);
+    }
+}
+
+/// Messages whose one time is `stamp_ns`.
+macro_rules! shift_stamp {
+    ($($t:ty),*) => {$(
+        impl ShiftClock for $t {
+            fn shift_clock(&mut self, by_ns: i64) {
+                shift(&mut self.stamp_ns, by_ns);
+            }
+        }
+    )*};
+}
+
+shift_stamp!(
+    JointState,
+    MirrorSample,
+    CalibrationMsg,
+    Prediction,
+    LocatedObject,
+    JointPositions,
+    PoseGoal
+);

@@ -1,8 +1,14 @@
 //! Two bridges over a zenoh TCP link on this host, between two service
-//! prefixes (no shared memory in common between the sides' topics): joint
-//! states and stereo frames cross byte for byte and in order; a message of
-//! another layout put on the link is refused, counted and named in the log
-//! with both layouts; both bridges stop cleanly on SIGTERM.
+//! prefixes (no shared memory in common between the sides' topics), the
+//! receiving one in a time namespace whose CLOCK_MONOTONIC is a day ahead
+//! (as another host's would be): joint states and stereo frames cross in
+//! order, unchanged but for their times, which arrive on the receiving
+//! side's clock; a message of another layout put on the link is refused,
+//! counted and named in the log with both layouts; both bridges stop cleanly
+//! on SIGTERM.
+//!
+//! Time namespaces need root (`unshare --time`), as the tests of two hosts
+//! do; `MIRROR_SKIP_ROOT_TESTS=1` skips them, saying so.
 
 use std::net::TcpListener;
 use std::process::{Command, Stdio};
@@ -21,6 +27,9 @@ fn free_port() -> u16 {
         .port()
 }
 
+/// How far ahead the receiving side's clock is: a day.
+const AHEAD_S: i64 = 86_400;
+
 fn bridge(args: &[&str]) -> KillOnDrop {
     KillOnDrop(
         Command::new(stage_binaries().join("bridge"))
@@ -31,12 +40,31 @@ fn bridge(args: &[&str]) -> KillOnDrop {
     )
 }
 
-/// SIGTERM, then the exit status and the log.
+/// A bridge whose CLOCK_MONOTONIC is `ahead_s` ahead of this process's.
+fn bridge_ahead(ahead_s: i64, args: &[&str]) -> KillOnDrop {
+    KillOnDrop(
+        Command::new("unshare")
+            .args(["--time", "--fork", "--kill-child=SIGTERM", "--monotonic"])
+            .arg(ahead_s.to_string())
+            .arg(stage_binaries().join("bridge"))
+            .args(args)
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("unshare starts"),
+    )
+}
+
+/// SIGTERM to `child` (or to the process it forked, for `unshare`), then
+/// the exit status and the log.
 fn stop(mut child: KillOnDrop) -> (bool, String) {
-    // SAFETY: kill(2) on our own child's pid.
+    let pid = child.0.id();
+    let forked = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children"))
+        .ok()
+        .and_then(|c| c.split_whitespace().next()?.parse::<i32>().ok());
+    // SAFETY: kill(2) on our own child's (or its child's) pid.
     #[allow(unsafe_code)]
     unsafe {
-        libc::kill(child.0.id() as i32, libc::SIGTERM);
+        libc::kill(forked.unwrap_or(pid as i32), libc::SIGTERM);
     }
     let deadline = Instant::now() + Duration::from_secs(10);
     while child.0.try_wait().unwrap().is_none() {
@@ -62,15 +90,39 @@ fn stop(mut child: KillOnDrop) -> (bool, String) {
 fn joint_state(seq: u64) -> JointState {
     JointState {
         seq,
-        stamp_ns: 1_000 + seq as i64,
+        stamp_ns: messages::now_ns() - 1_000_000 + seq as i64,
         pose: seq / 3,
         dof: 4,
         ..JointState::default()
     }
 }
 
+/// Whether the root-only tests are to be skipped; says so if they are.
+fn skip_root_tests() -> bool {
+    let skip = std::env::var_os("MIRROR_SKIP_ROOT_TESTS").is_some_and(|v| v == "1");
+    if skip {
+        eprintln!("MIRROR_SKIP_ROOT_TESTS=1: skipping a test that needs root");
+    }
+    skip
+}
+
+/// `a` and `b` equal but for their stamps, and `b`'s stamp `a`'s moved by
+/// `ahead_ns` within 5 ms.
+fn same_but_moved(a: &JointState, b: &JointState, ahead_ns: i64) -> bool {
+    let moved = JointState {
+        stamp_ns: a.stamp_ns,
+        ..*b
+    };
+    bytemuck::bytes_of(a) == bytemuck::bytes_of(&moved)
+        && (b.stamp_ns - a.stamp_ns - ahead_ns).abs() < 5_000_000
+}
+
 #[test]
 fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
+    if skip_root_tests() {
+        return;
+    }
+    let ahead_ns = AHEAD_S * 1_000_000_000;
     let (robot, workstation) = (unique_prefix("bridge_robot"), unique_prefix("bridge_ws"));
     let namespace = format!("mirror/{robot}");
     let (robot_port, ws_port) = (free_port(), free_port());
@@ -86,27 +138,31 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
         "--listen",
         &robot_listen,
     ]);
-    let receiving = bridge(&[
-        "--prefix",
-        &workstation,
-        "--namespace",
-        &namespace,
-        "--receive",
-        "joint_state,frames",
-        "--connect",
-        &robot_listen,
-        "--listen",
-        &ws_listen,
-    ]);
+    let receiving = bridge_ahead(
+        AHEAD_S,
+        &[
+            "--prefix",
+            &workstation,
+            "--namespace",
+            &namespace,
+            "--receive",
+            "joint_state,frames",
+            "--connect",
+            &robot_listen,
+            "--listen",
+            &ws_listen,
+        ],
+    );
 
     let robot_bus = Bus::new(&robot, "test_robot").unwrap();
     let ws_bus = Bus::new(&workstation, "test_ws").unwrap();
     let joints_out = robot_bus.publisher::<topics::JointState>().unwrap();
     let joints_in = ws_bus.subscriber::<topics::JointState>().unwrap();
     let frames_in = ws_bus.frame_subscriber::<topics::Frames>().unwrap();
+    let start_ns = messages::now_ns();
     let header = |seq: u64| FrameHeader {
         seq,
-        stamp_ns: 5_000 + seq as i64,
+        stamp_ns: start_ns + seq as i64,
         published_ns: 0,
         width: 32,
         height: 24,
@@ -131,8 +187,9 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
 
     // Joint states (sent reliably) all cross, in order, byte for byte.
     let n = 300;
-    for seq in 1..=n {
-        joints_out.send(joint_state(seq)).unwrap();
+    let sent: Vec<JointState> = (1..=n).map(joint_state).collect();
+    for js in &sent {
+        joints_out.send(*js).unwrap();
     }
     let mut got = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(10);
@@ -143,14 +200,13 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
             None => std::thread::sleep(Duration::from_millis(2)),
         }
     }
-    let sent: Vec<JointState> = (1..=n).map(joint_state).collect();
     assert_eq!(got.len(), sent.len(), "joint states lost on the link");
-    assert!(
-        got.iter()
-            .zip(&sent)
-            .all(|(a, b)| bytemuck::bytes_of(a) == bytemuck::bytes_of(b)),
-        "joint states changed or reordered on the link"
-    );
+    for (a, b) in sent.iter().zip(&got) {
+        assert!(
+            same_but_moved(a, b, ahead_ns),
+            "a joint state changed, reordered or not moved onto the receiving clock:\n{a:?}\n{b:?}"
+        );
+    }
 
     // Frames: header and both images as published (published_ns kept).
     let pixels = |seq: u64, k: usize| -> Vec<u8> {
@@ -179,11 +235,17 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
         }
     }
     for (seq, (h, p)) in (1..=5u64).zip(&crossed) {
-        assert_eq!(
-            (h.seq, h.stamp_ns, h.width, h.height, h.stride),
-            (seq, 5_000 + seq as i64, 32, 24, 40)
+        assert_eq!((h.seq, h.width, h.height, h.stride), (seq, 32, 24, 40));
+        let moved = h.stamp_ns - (start_ns + seq as i64) - ahead_ns;
+        assert!(
+            moved.abs() < 5_000_000,
+            "frame stamp moved wrong by {moved} ns"
         );
-        assert!(h.published_ns > 0, "the sender's publication time is kept");
+        // Published on the sending side (after the stamp), moved alike.
+        assert!(
+            h.published_ns - ahead_ns >= start_ns && h.published_ns < h.stamp_ns + 5_000_000_000,
+            "{h:?}"
+        );
         assert_eq!(p, &[pixels(seq, 0), pixels(seq, 1)].concat());
     }
 
@@ -199,7 +261,11 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
     let rogue = zenoh::open(config).wait().unwrap();
     let foreign = bridge::envelope::seal(
         TopicId::Samples,
-        0,
+        bridge::envelope::From {
+            sender: "0a",
+            seq: 1,
+            sent_ns: 0,
+        },
         bytemuck::bytes_of(&messages::MirrorSample::default()),
     );
     // Time for the rogue's link to come up, then for its message to arrive.
@@ -245,4 +311,14 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
     };
     assert!(count("received_joint_state") > n, "{log}");
     assert_eq!(count("received_frames"), 5, "{log}");
+    assert_eq!(count("lost_joint_state"), 0, "{log}");
+    let logged_ahead: f64 = log
+        .lines()
+        .find(|l| l.contains("clock of a new sender"))
+        .and_then(|l| l.split("ahead_s=").nth(1)?.split(' ').next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no clock offset in the log:\n{log}"));
+    assert!(
+        (logged_ahead + AHEAD_S as f64).abs() < 0.005,
+        "the sender's clock is a day behind, not {logged_ahead} s"
+    );
 }
