@@ -58,7 +58,14 @@ pub struct Options {
     pub listen: Vec<String>,
     /// Zenoh endpoints to connect to (e.g. `tcp/192.168.1.20:7447`).
     pub connect: Vec<String>,
+    /// How long the link may stay silent before it counts as cut, ms (then
+    /// both sides count what they send as lost, and the connecting side
+    /// connects again every 1 to 4 s).
+    pub lease_ms: u64,
 }
+
+/// The default of [`Options::lease_ms`]: zenoh's own.
+pub const DEFAULT_LEASE_MS: u64 = 10_000;
 
 impl Options {
     /// Refuses what cannot work: a topic both sent and received would come
@@ -75,6 +82,9 @@ impl Options {
         }
         if self.listen.is_empty() && self.connect.is_empty() {
             bail!("no link: give --listen and/or --connect");
+        }
+        if !(100..=600_000).contains(&self.lease_ms) {
+            bail!("lease {} ms is not within 100 ms to 10 min", self.lease_ms);
         }
         if self.namespace.is_empty() || self.namespace.contains(['*', '$', '#', '?']) {
             bail!("namespace {:?} is not a plain zenoh key", self.namespace);
@@ -107,6 +117,7 @@ impl Options {
         set("scouting/multicast/enabled", "false".into())?;
         set("listen/endpoints", json(&self.listen))?;
         set("connect/endpoints", json(&self.connect))?;
+        set("transport/link/tx/lease", self.lease_ms.to_string())?;
         Ok(config)
     }
 }
@@ -117,6 +128,9 @@ pub struct Counters {
     pub sent: [AtomicU64; TopicId::COUNT],
     /// Of those, messages put while no receiver was on the link (lost).
     pub unheard: [AtomicU64; TopicId::COUNT],
+    /// Messages taken from shared memory but dropped because the queue to
+    /// the link was full (a link stalled for long).
+    pub dropped: [AtomicU64; TopicId::COUNT],
     /// Messages received and published here.
     pub received: [AtomicU64; TopicId::COUNT],
     /// Messages the sender numbered but that never came (gaps in its
@@ -137,6 +151,7 @@ impl Default for Counters {
         Self {
             sent: Default::default(),
             unheard: Default::default(),
+            dropped: Default::default(),
             received: Default::default(),
             lost: Default::default(),
             refused: AtomicU64::new(0),
@@ -183,6 +198,7 @@ impl Counters {
             if options.send.contains(&t) {
                 stats.count(&format!("sent_{name}"), Self::get(&self.sent, t));
                 stats.count(&format!("unheard_{name}"), Self::get(&self.unheard, t));
+                stats.count(&format!("dropped_{name}"), Self::get(&self.dropped, t));
             }
             if options.receive.contains(&t) {
                 stats.count(&format!("received_{name}"), Self::get(&self.received, t));
@@ -447,40 +463,137 @@ fn send(
             waiting_since = Instant::now();
         }
     }
-    let mut taps = Vec::new();
-    for (topic, publisher) in publishers {
-        taps.push((AnySubscriber::new(&bus, topic)?, publisher, Cell::new(0u64)));
-    }
+    let taps = publishers
+        .iter()
+        .map(|(topic, _)| Ok((AnySubscriber::new(&bus, *topic)?, Cell::new(0u64))))
+        .collect::<Result<Vec<_>>>()?;
     if !taps.is_empty() {
         tracing::info!("every sent topic has a receiver: sending");
     }
-    let listeners: Vec<_> = taps.iter().map(|(tap, ..)| tap.listener()).collect();
-    bus.wake()?.run(&listeners, Some(TICK), || -> Result<_> {
-        for (tap, publisher, seq) in &taps {
-            let topic = tap.topic();
-            while let Some(taken) = tap.take()? {
-                seq.set(seq.get() + 1);
-                let from = envelope::From {
-                    sender: zid,
-                    seq: seq.get(),
-                    sent_ns: now_ns(),
+    let (small_out, small) = crossbeam_channel::bounded::<Outgoing>(SEND_QUEUE_SMALL);
+    let (frames_out, frames) = crossbeam_channel::bounded::<Outgoing>(SEND_QUEUE_FRAMES);
+    let put_failed = AtomicBool::new(false);
+    std::thread::scope(|s| {
+        let putting = s.spawn(|| {
+            let result = put(&publishers, zid, small, frames, counters);
+            put_failed.store(result.is_err(), Ordering::Relaxed);
+            result
+        });
+        let listeners: Vec<_> = taps.iter().map(|(tap, _)| tap.listener()).collect();
+        let taken = bus.wake()?.run(&listeners, Some(TICK), || -> Result<_> {
+            for (tap, seq) in &taps {
+                let topic = tap.topic();
+                let queue = if topic.carries_frames() {
+                    &frames_out
+                } else {
+                    &small_out
                 };
-                if !heard(publisher) {
-                    Counters::add(&counters.unheard[topic.index()], 1);
+                while let Some(taken) = tap.take()? {
+                    seq.set(seq.get() + 1);
+                    let outgoing = Outgoing {
+                        topic,
+                        seq: seq.get(),
+                        bytes: taken.bytes,
+                    };
+                    if queue.try_send(outgoing).is_err() {
+                        Counters::add(&counters.dropped[topic.index()], 1);
+                    }
                 }
-                publisher
-                    .put(envelope::seal(topic, from, &taken.bytes))
-                    .wait()
-                    .map_err(|e| anyhow::anyhow!("sending on {}: {e}", topic.name()))?;
-                Counters::add(&counters.sent[topic.index()], 1);
             }
-        }
-        Ok(if any_set(stops) {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        })
+            Ok(if any_set(stops) || put_failed.load(Ordering::Relaxed) {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
+        });
+        // The putting side sends what is queued, then ends.
+        drop((small_out, frames_out));
+        let put = putting
+            .join()
+            .map_err(|_| anyhow::anyhow!("the putting thread panicked"))?;
+        taken.and(put)
     })
+}
+
+/// A message taken from shared memory, waiting for the link.
+struct Outgoing {
+    topic: TopicId,
+    /// The sender's count of messages on `topic`.
+    seq: u64,
+    bytes: Vec<u8>,
+}
+
+/// Small messages that may wait for the link (16 s of joint states at
+/// 250 Hz): a link that stalls for a moment (a TCP retransmission, a
+/// reconnection) loses none of them. Past it they are dropped and counted.
+const SEND_QUEUE_SMALL: usize = 4096;
+
+/// Frames that may wait for the link: a frame late by more is stale.
+const SEND_QUEUE_FRAMES: usize = 4;
+
+/// Puts what is queued on the link, small messages first, until both
+/// queues are closed and empty.
+fn put(
+    publishers: &[(TopicId, zenoh::pubsub::Publisher<'_>)],
+    zid: &str,
+    small: crossbeam_channel::Receiver<Outgoing>,
+    frames: crossbeam_channel::Receiver<Outgoing>,
+    counters: &Counters,
+) -> Result<()> {
+    let publisher = |topic: TopicId| {
+        publishers
+            .iter()
+            .find(|(t, _)| *t == topic)
+            .map(|(_, p)| p)
+            .expect("a publisher per sent topic")
+    };
+    let (mut small_open, mut frames_open) = (true, true);
+    loop {
+        let out = if let Ok(out) = small.try_recv() {
+            out
+        } else {
+            let mut select = crossbeam_channel::Select::new();
+            let small_index = small_open.then(|| select.recv(&small));
+            if frames_open {
+                select.recv(&frames);
+            }
+            if !(small_open || frames_open) {
+                break;
+            }
+            let op = select.select();
+            let is_small = Some(op.index()) == small_index;
+            match op.recv(if is_small { &small } else { &frames }) {
+                Ok(out) => out,
+                Err(_) if is_small => {
+                    small_open = false;
+                    continue;
+                }
+                Err(_) => {
+                    frames_open = false;
+                    continue;
+                }
+            }
+        };
+        let publisher = publisher(out.topic);
+        let heard = publisher
+            .matching_status()
+            .wait()
+            .is_ok_and(|status| status.matching());
+        if !heard {
+            Counters::add(&counters.unheard[out.topic.index()], 1);
+        }
+        let from = envelope::From {
+            sender: zid,
+            seq: out.seq,
+            sent_ns: now_ns(),
+        };
+        publisher
+            .put(envelope::seal(out.topic, from, &out.bytes))
+            .wait()
+            .map_err(|e| anyhow::anyhow!("sending on {}: {e}", out.topic.name()))?;
+        Counters::add(&counters.sent[out.topic.index()], 1);
+    }
+    Ok(())
 }
 
 /// The receiving side: until one of `stops`.

@@ -33,6 +33,10 @@ struct Args {
     /// Zenoh endpoint of the other side (repeatable), e.g. `tcp/10.0.0.2:7447`.
     #[arg(long)]
     connect: Vec<String>,
+    /// How long the link may stay silent before it counts as cut, ms; then
+    /// the connecting side connects again by itself.
+    #[arg(long, default_value_t = bridge::DEFAULT_LEASE_MS)]
+    lease_ms: u64,
 }
 
 fn topic(name: &str) -> Result<TopicId> {
@@ -52,6 +56,7 @@ fn run(args: Args) -> Result<()> {
         receive: args.receive,
         listen: args.listen,
         connect: args.connect,
+        lease_ms: args.lease_ms,
     };
     let counters = Counters::default();
     let stop = AtomicBool::new(false);

@@ -298,17 +298,7 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
         "the refusal is not counted:\n{log}"
     );
     // Every joint state sent after the probes, and at least one probe.
-    let count = |name: &str| -> u64 {
-        let at = log
-            .find(&format!("{name}="))
-            .unwrap_or_else(|| panic!("no {name} in:\n{log}"));
-        log[at + name.len() + 1..]
-            .split(|c: char| !c.is_ascii_digit())
-            .next()
-            .unwrap()
-            .parse()
-            .unwrap()
-    };
+    let count = |name: &str| counter(&log, name);
     assert!(count("received_joint_state") > n, "{log}");
     assert_eq!(count("received_frames"), 5, "{log}");
     assert_eq!(count("lost_joint_state"), 0, "{log}");
@@ -320,5 +310,205 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
     assert!(
         (logged_ahead + AHEAD_S as f64).abs() < 0.005,
         "the sender's clock is a day behind, not {logged_ahead} s"
+    );
+}
+
+/// Two network namespaces joined by a veth pair: two hosts' networks on
+/// this machine. Removed (with the pair) when dropped.
+struct TwoHosts {
+    names: [String; 2],
+    veth: [String; 2],
+    addresses: [String; 2],
+}
+
+impl TwoHosts {
+    fn new() -> Self {
+        let pid = std::process::id();
+        let names = [format!("mra{pid}"), format!("mrb{pid}")];
+        let veth = [format!("mva{pid}"), format!("mvb{pid}")];
+        let net = format!("10.213.{}", pid % 250);
+        let addresses = [format!("{net}.1"), format!("{net}.2")];
+        let hosts = Self {
+            names,
+            veth,
+            addresses,
+        };
+        for ns in &hosts.names {
+            ip(&["netns", "add", ns]);
+            ip(&["-n", ns, "link", "set", "lo", "up"]);
+        }
+        ip(&[
+            "link",
+            "add",
+            &hosts.veth[0],
+            "type",
+            "veth",
+            "peer",
+            "name",
+            &hosts.veth[1],
+        ]);
+        for k in 0..2 {
+            let (ns, dev) = (&hosts.names[k], &hosts.veth[k]);
+            ip(&["link", "set", dev, "netns", ns]);
+            let address = format!("{}/24", hosts.addresses[k]);
+            ip(&["-n", ns, "addr", "add", &address, "dev", dev]);
+            ip(&["-n", ns, "link", "set", dev, "up"]);
+        }
+        hosts
+    }
+
+    /// Cuts (`false`) or restores host 0's side of the link.
+    fn link(&self, up: bool) {
+        let state = if up { "up" } else { "down" };
+        ip(&["-n", &self.names[0], "link", "set", &self.veth[0], state]);
+    }
+
+    /// A bridge on host `k`.
+    fn bridge(&self, k: usize, args: &[&str]) -> KillOnDrop {
+        KillOnDrop(
+            Command::new("ip")
+                .args(["netns", "exec", &self.names[k]])
+                .arg(stage_binaries().join("bridge"))
+                .args(args)
+                .stderr(Stdio::piped())
+                .spawn()
+                .expect("ip netns exec starts"),
+        )
+    }
+}
+
+impl Drop for TwoHosts {
+    fn drop(&mut self) {
+        for ns in &self.names {
+            let _ = Command::new("ip").args(["netns", "del", ns]).status();
+        }
+    }
+}
+
+fn ip(args: &[&str]) {
+    let out = Command::new("ip").args(args).output().expect("ip runs");
+    assert!(
+        out.status.success(),
+        "ip {}: {} (the tests of two hosts need root; MIRROR_SKIP_ROOT_TESTS=1 skips them)",
+        args.join(" "),
+        String::from_utf8_lossy(&out.stderr).trim()
+    );
+}
+
+/// The value of counter `name` in a stage's log.
+fn counter(log: &str, name: &str) -> u64 {
+    let at = log
+        .find(&format!(" {name}="))
+        .unwrap_or_else(|| panic!("no {name} in:\n{log}"));
+    log[at + name.len() + 2..]
+        .split(|c: char| !c.is_ascii_digit())
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap()
+}
+
+#[test]
+fn a_cut_link_comes_back_by_itself_and_both_sides_count_the_loss() {
+    if skip_root_tests() {
+        return;
+    }
+    let hosts = TwoHosts::new();
+    let (robot, workstation) = (unique_prefix("cut_robot"), unique_prefix("cut_ws"));
+    let namespace = format!("mirror/{robot}");
+    let listen = format!("tcp/{}:7447", hosts.addresses[0]);
+    // A short lease, so that a cut of 3 s is a cut and not a stall.
+    let common = ["--namespace", &namespace, "--lease-ms", "1000"];
+    let sending = hosts.bridge(
+        0,
+        &[
+            &common[..],
+            &[
+                "--prefix",
+                &robot,
+                "--send",
+                "joint_state",
+                "--listen",
+                &listen,
+            ],
+        ]
+        .concat(),
+    );
+    let receiving = hosts.bridge(
+        1,
+        &[
+            &common[..],
+            &[
+                "--prefix",
+                &workstation,
+                "--receive",
+                "joint_state",
+                "--connect",
+                &listen,
+            ],
+        ]
+        .concat(),
+    );
+    let robot_bus = Bus::new(&robot, "test_robot").unwrap();
+    let ws_bus = Bus::new(&workstation, "test_ws").unwrap();
+    let joints_out = robot_bus.publisher::<topics::JointState>().unwrap();
+    let joints_in = ws_bus.subscriber::<topics::JointState>().unwrap();
+
+    // 250 Hz: until the link is up, then 1 s, a cut of 3 s, and 3 s more.
+    let mut arrived = Vec::new();
+    let take = |arrived: &mut Vec<u64>| {
+        while let Some(js) = joints_in.receive().unwrap() {
+            arrived.push(js.seq);
+        }
+    };
+    let mut seq = 0;
+    let mut publish_for = |d: Duration, arrived: &mut Vec<u64>| {
+        let until = Instant::now() + d;
+        while Instant::now() < until {
+            seq += 1;
+            joints_out.send(joint_state(seq)).unwrap();
+            std::thread::sleep(Duration::from_millis(4));
+            take(arrived);
+        }
+        seq
+    };
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while arrived.is_empty() {
+        assert!(
+            Instant::now() < deadline,
+            "the link did not come up in 20 s"
+        );
+        publish_for(Duration::from_millis(50), &mut arrived);
+    }
+    publish_for(Duration::from_secs(1), &mut arrived);
+    hosts.link(false);
+    let cut_at = publish_for(Duration::from_secs(3), &mut arrived);
+    hosts.link(true);
+    let last = publish_for(Duration::from_secs(3), &mut arrived);
+    std::thread::sleep(Duration::from_millis(500));
+    take(&mut arrived);
+
+    let (ok_send, send_log) = stop(sending);
+    let (ok_receive, log) = stop(receiving);
+    assert!(ok_send && ok_receive, "a bridge failed:\n{send_log}\n{log}");
+    // The link came back by itself: messages published after it did arrived.
+    assert!(
+        arrived.iter().any(|&s| s > cut_at) && arrived.last() == Some(&last),
+        "nothing published after the cut arrived (last {:?} of {last}):\n{log}",
+        arrived.last()
+    );
+    assert!(arrived.windows(2).all(|w| w[0] < w[1]), "reordered");
+    // What never came is what the receiving side counts as lost.
+    let first = arrived[0];
+    let missing = (last - first + 1) - arrived.len() as u64;
+    assert!(missing > 0, "a 3 s cut with a 1 s lease lost nothing");
+    assert_eq!(counter(&log, "lost_joint_state"), missing, "{log}");
+    // The sending side knows it spoke to no one for a while.
+    assert!(counter(&send_log, "unheard_joint_state") > 0, "{send_log}");
+    eprintln!(
+        "published {} after the first arrival, {missing} lost in the cut; sender: unheard {}, dropped {}",
+        last - first + 1,
+        counter(&send_log, "unheard_joint_state"),
+        counter(&send_log, "dropped_joint_state")
     );
 }
