@@ -512,3 +512,130 @@ fn a_cut_link_comes_back_by_itself_and_both_sides_count_the_loss() {
         counter(&send_log, "dropped_joint_state")
     );
 }
+
+#[test]
+fn a_second_robot_on_the_same_network_does_not_disturb_the_first() {
+    // One zenoh network: each robot's bridge listens, and each workstation
+    // bridge connects to both robots. Only the namespaces keep them apart.
+    let prefix = |name: &str| unique_prefix(&format!("two_{name}"));
+    let (robot1, robot2, ws1, ws2) = (prefix("r1"), prefix("r2"), prefix("w1"), prefix("w2"));
+    let (ns1, ns2) = (format!("mirror/{robot1}"), format!("mirror/{robot2}"));
+    let hubs = [free_port(), free_port()].map(|p| format!("tcp/127.0.0.1:{p}"));
+    let robot = |prefix: &str, ns: &str, hub: &str| {
+        bridge(&[
+            "--prefix",
+            prefix,
+            "--namespace",
+            ns,
+            "--send",
+            "joint_state",
+            "--listen",
+            hub,
+        ])
+    };
+    let workstation = |prefix: &str, ns: &str| {
+        bridge(&[
+            "--prefix",
+            prefix,
+            "--namespace",
+            ns,
+            "--receive",
+            "joint_state",
+            "--connect",
+            &hubs[0],
+            "--connect",
+            &hubs[1],
+        ])
+    };
+    let first_robot = robot(&robot1, &ns1, &hubs[0]);
+    let first_ws = workstation(&ws1, &ns1);
+    let second_ws = workstation(&ws2, &ns2);
+
+    let marked = |robot: u64, seq: u64| JointState {
+        pose: robot,
+        ..joint_state(seq)
+    };
+    let out1 = Bus::new(&robot1, "test_r1")
+        .unwrap()
+        .publisher::<topics::JointState>()
+        .unwrap();
+    let bus_r2 = Bus::new(&robot2, "test_r2").unwrap();
+    let out2 = bus_r2.publisher::<topics::JointState>().unwrap();
+    let in1 = Bus::new(&ws1, "test_w1")
+        .unwrap()
+        .subscriber::<topics::JointState>()
+        .unwrap();
+    let in2 = Bus::new(&ws2, "test_w2")
+        .unwrap()
+        .subscriber::<topics::JointState>()
+        .unwrap();
+    let (mut got1, mut got2) = (Vec::new(), Vec::new());
+    let take = |got1: &mut Vec<JointState>, got2: &mut Vec<JointState>| {
+        while let Some(js) = in1.receive().unwrap() {
+            got1.push(js);
+        }
+        while let Some(js) = in2.receive().unwrap() {
+            got2.push(js);
+        }
+    };
+    // The first robot's link comes up.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while got1.is_empty() {
+        assert!(
+            Instant::now() < deadline,
+            "the first robot's link did not come up"
+        );
+        out1.send(marked(1, 0)).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        take(&mut got1, &mut got2);
+    }
+    // The first robot streams at 250 Hz while the second joins, streams and
+    // leaves.
+    let mut second_robot = None;
+    for seq in 1..=1000u64 {
+        out1.send(marked(1, seq)).unwrap();
+        match seq {
+            100 => second_robot = Some(robot(&robot2, &ns2, &hubs[1])),
+            300..=700 => out2.send(marked(2, seq)).unwrap(),
+            800 => {
+                let (ok, log) = stop(second_robot.take().unwrap());
+                assert!(ok, "the second robot's bridge failed:\n{log}");
+            }
+            _ => {}
+        }
+        std::thread::sleep(Duration::from_millis(4));
+        take(&mut got1, &mut got2);
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    take(&mut got1, &mut got2);
+
+    let (ok1, _) = stop(first_robot);
+    let (ok_ws1, log1) = stop(first_ws);
+    let (ok_ws2, log2) = stop(second_ws);
+    assert!(ok1 && ok_ws1 && ok_ws2, "a bridge failed:\n{log1}\n{log2}");
+    // Each workstation side has its own robot's messages only.
+    assert!(
+        got1.iter().all(|js| js.pose == 1),
+        "the second robot's messages reached the first's side"
+    );
+    assert!(
+        got2.iter().all(|js| js.pose == 2),
+        "the first robot's messages reached the second's side"
+    );
+    // The first robot's stream lost nothing and kept its order.
+    let after_probes: Vec<u64> = got1.iter().map(|js| js.seq).filter(|&s| s > 0).collect();
+    assert_eq!(
+        after_probes,
+        (1..=1000).collect::<Vec<_>>(),
+        "the first robot's stream was disturbed"
+    );
+    assert_eq!(counter(&log1, "lost_joint_state"), 0, "{log1}");
+    // The second robot's messages crossed too, from when its link was up
+    // (the workstation side connects again every 1 to 4 s) to its last.
+    assert!(
+        got2.last().is_some_and(|js| js.seq == 700) && got2.windows(2).all(|w| w[0].seq < w[1].seq),
+        "{} of the second robot's 401 messages crossed:\n{log2}",
+        got2.len()
+    );
+    drop(bus_r2);
+}
