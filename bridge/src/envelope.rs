@@ -10,7 +10,8 @@
 //! sender     sender_len bytes the sending bridge's zenoh id (hex): whose clock the times are
 //! seq        8 bytes  u64 LE  the sender's count of messages on this topic, from 1
 //! sent_ns    8 bytes  i64 LE  the sender's CLOCK_MONOTONIC when it sent
-//! len        4 bytes  u32 LE  bytes of the message
+//! encoding   1 byte           0: as is; 1: zstd (lossless)
+//! len        4 bytes  u32 LE  bytes of the (encoded) message
 //! message    len bytes        as in shared memory (a frame: header, then both images)
 //! ```
 //!
@@ -21,6 +22,23 @@ use messages::topics::{Message, TopicId};
 
 /// The envelope's first bytes; the digit is the envelope's version.
 pub const MAGIC: &[u8; 4] = b"MRB2";
+
+/// How a message's bytes travel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Encoding {
+    /// As in shared memory.
+    #[default]
+    Raw,
+    /// zstd at level [`ZSTD_LEVEL`]: lossless, for a slow link.
+    Zstd,
+}
+
+/// zstd's fastest regular level: a stereo frame must not wait long.
+pub const ZSTD_LEVEL: i32 = 1;
+
+/// The most a message may be once decoded (a 4K stereo colour frame is
+/// 50 MB): bytes from a network do not get to ask for more memory.
+pub const MAX_MESSAGE: usize = 64 << 20;
 
 /// Who sent a message, and which of theirs it is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -40,8 +58,17 @@ fn push_short(out: &mut Vec<u8>, s: &str) {
     out.extend_from_slice(&s.as_bytes()[..n]);
 }
 
-/// Wraps the bytes of a message on `topic`.
-pub fn seal(topic: TopicId, from: From<'_>, message: &[u8]) -> Vec<u8> {
+/// Wraps the bytes of a message on `topic`, encoded as `encoding`.
+pub fn seal(topic: TopicId, from: From<'_>, encoding: Encoding, message: &[u8]) -> Vec<u8> {
+    let encoded;
+    let (code, message) = match encoding {
+        Encoding::Raw => (0u8, message),
+        Encoding::Zstd => {
+            // Compressing a byte slice in memory cannot fail.
+            encoded = zstd::bulk::compress(message, ZSTD_LEVEL).expect("zstd compresses");
+            (1u8, &encoded[..])
+        }
+    };
     let name = topic.layout().type_name;
     let mut out = Vec::with_capacity(4 + 2 + name.len() + from.sender.len() + 20 + message.len());
     out.extend_from_slice(MAGIC);
@@ -49,6 +76,7 @@ pub fn seal(topic: TopicId, from: From<'_>, message: &[u8]) -> Vec<u8> {
     push_short(&mut out, from.sender);
     out.extend_from_slice(&from.seq.to_le_bytes());
     out.extend_from_slice(&from.sent_ns.to_le_bytes());
+    out.push(code);
     out.extend_from_slice(&(message.len() as u32).to_le_bytes());
     out.extend_from_slice(message);
     out
@@ -63,9 +91,14 @@ pub struct Opened<'a> {
     pub message: Message<'a>,
 }
 
-/// Opens an envelope that came on `topic`'s key; the error is one line
-/// naming what is wrong.
-pub fn open(topic: TopicId, bytes: &[u8]) -> Result<Opened<'_>, String> {
+/// Opens an envelope that came on `topic`'s key, decoding into `scratch`
+/// if the message was compressed; the error is one line naming what is
+/// wrong.
+pub fn open<'a>(
+    topic: TopicId,
+    bytes: &'a [u8],
+    scratch: &'a mut Vec<u8>,
+) -> Result<Opened<'a>, String> {
     let mut rest = bytes;
     let mut take = |n: usize, what: &str| -> Result<&[u8], String> {
         if rest.len() < n {
@@ -98,11 +131,21 @@ pub fn open(topic: TopicId, bytes: &[u8]) -> Result<Opened<'_>, String> {
         .ok_or_else(|| "the sender's id is not a zenoh id (hex digits)".to_string())?;
     let seq = u64::from_le_bytes(take(8, "sequence number")?.try_into().expect("8 bytes"));
     let sent_ns = i64::from_le_bytes(take(8, "send time")?.try_into().expect("8 bytes"));
+    let code = take(1, "encoding")?[0];
     let len = u32::from_le_bytes(take(4, "length")?.try_into().expect("4 bytes")) as usize;
     let message = take(len, "message")?;
     if !rest.is_empty() {
         return Err(format!("{} bytes after the message", rest.len()));
     }
+    let message = match code {
+        0 => message,
+        1 => {
+            *scratch = zstd::bulk::decompress(message, MAX_MESSAGE)
+                .map_err(|e| format!("{} message does not decompress: {e}", topic.name()))?;
+            &scratch[..]
+        }
+        other => return Err(format!("unknown encoding {other}")),
+    };
     let message = Message::decode(topic, message)
         .map_err(|e| format!("{} of layout {ours}: {e}", topic.name()))?;
     Ok(Opened {
@@ -137,52 +180,91 @@ mod tests {
     #[test]
     fn a_sealed_message_opens_to_the_same_bytes() {
         let js = joint_state();
-        let bytes = seal(TopicId::JointState, FROM, bytemuck::bytes_of(&js));
-        let opened = open(TopicId::JointState, &bytes).unwrap();
+        let bytes = seal(
+            TopicId::JointState,
+            FROM,
+            Encoding::Raw,
+            bytemuck::bytes_of(&js),
+        );
+        let mut scratch = Vec::new();
+        let opened = open(TopicId::JointState, &bytes, &mut scratch).unwrap();
         assert_eq!(opened.from, FROM);
         assert_eq!(opened.message, Message::JointState(js));
     }
 
     #[test]
+    fn a_compressed_frame_opens_to_the_same_bytes() {
+        let header = messages::FrameHeader {
+            seq: 4,
+            stamp_ns: 10,
+            published_ns: 11,
+            width: 64,
+            height: 8,
+            stride: 64,
+            encoding: messages::Encoding::Mono8 as u32,
+        };
+        let mut frame = bytemuck::bytes_of(&header).to_vec();
+        frame.extend((0..2 * 64 * 8).map(|i| (i / 16) as u8));
+        let sealed = seal(TopicId::Frames, FROM, Encoding::Zstd, &frame);
+        assert!(sealed.len() < frame.len() / 2, "{} bytes", sealed.len());
+        let mut scratch = Vec::new();
+        let opened = open(TopicId::Frames, &sealed, &mut scratch).unwrap();
+        assert_eq!(opened.message.to_bytes(), frame);
+    }
+
+    #[test]
     fn every_malformed_envelope_is_refused_in_one_line() {
+        let open = |bytes: &[u8]| open(TopicId::JointState, bytes, &mut Vec::new()).map(|_| ());
+        let js = joint_state();
         let good = seal(
             TopicId::JointState,
             FROM,
-            bytemuck::bytes_of(&joint_state()),
+            Encoding::Raw,
+            bytemuck::bytes_of(&js),
         );
-        // Cut anywhere: refused, never a panic.
-        for n in 0..good.len() {
-            let e = open(TopicId::JointState, &good[..n]).unwrap_err();
-            assert!(!e.contains('\n'), "{e}");
+        let zstd = seal(
+            TopicId::JointState,
+            FROM,
+            Encoding::Zstd,
+            bytemuck::bytes_of(&js),
+        );
+        // Cut anywhere: refused, never a panic; compressed too.
+        for sealed in [&good, &zstd] {
+            for n in 0..sealed.len() {
+                let e = open(&sealed[..n]).unwrap_err();
+                assert!(!e.contains('\n'), "{e}");
+            }
         }
+        // Compressed bytes that are not zstd; an unknown encoding.
+        let mut garbled = zstd.clone();
+        let at = garbled.len() - 6;
+        garbled[at..].fill(0xAB);
+        assert!(open(&garbled).is_err());
+        let mut unknown = good.clone();
+        let code_at = good.len() - size_of::<JointState>() - 5;
+        unknown[code_at] = 9;
+        assert!(open(&unknown).unwrap_err().contains("encoding 9"));
         let mut extra = good.clone();
         extra.push(0);
-        assert!(
-            open(TopicId::JointState, &extra)
-                .unwrap_err()
-                .contains("after")
-        );
+        assert!(open(&extra).unwrap_err().contains("after"));
         let mut magic = good.clone();
         magic[0] = b'X';
-        assert!(
-            open(TopicId::JointState, &magic)
-                .unwrap_err()
-                .contains("magic")
-        );
+        assert!(open(&magic).unwrap_err().contains("magic"));
         // A sender that is not an id.
         let odd = From {
             sender: "a/b",
             ..FROM
         };
-        let bytes = seal(TopicId::JointState, odd, bytemuck::bytes_of(&joint_state()));
-        assert!(
-            open(TopicId::JointState, &bytes)
-                .unwrap_err()
-                .contains("sender")
+        let bytes = seal(
+            TopicId::JointState,
+            odd,
+            Encoding::Raw,
+            bytemuck::bytes_of(&joint_state()),
         );
+        assert!(open(&bytes).unwrap_err().contains("sender"));
         // A length that disagrees with the layout's size.
-        let short = seal(TopicId::JointState, FROM, &[0u8; 8]);
-        let e = open(TopicId::JointState, &short).unwrap_err();
+        let short = seal(TopicId::JointState, FROM, Encoding::Raw, &[0u8; 8]);
+        let e = open(&short).unwrap_err();
         assert!(e.contains("mirror.JointState"), "{e}");
     }
 
@@ -192,9 +274,10 @@ mod tests {
         let bytes = seal(
             TopicId::JointState,
             FROM,
+            Encoding::Raw,
             bytemuck::bytes_of(&joint_state()),
         );
-        let e = open(TopicId::Samples, &bytes).unwrap_err();
+        let e = open(TopicId::Samples, &bytes, &mut Vec::new()).unwrap_err();
         let ours = TopicId::Samples.layout().type_name;
         let theirs = TopicId::JointState.layout().type_name;
         assert!(e.contains(&ours) && e.contains(&theirs), "{e}");

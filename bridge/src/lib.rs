@@ -58,6 +58,8 @@ pub struct Options {
     pub listen: Vec<String>,
     /// Zenoh endpoints to connect to (e.g. `tcp/192.168.1.20:7447`).
     pub connect: Vec<String>,
+    /// How frames travel (small messages always as they are).
+    pub frame_encoding: envelope::Encoding,
     /// How long the link may stay silent before it counts as cut, ms (then
     /// both sides count what they send as lost, and the connecting side
     /// connects again every 1 to 4 s).
@@ -475,7 +477,14 @@ fn send(
     let put_failed = AtomicBool::new(false);
     std::thread::scope(|s| {
         let putting = s.spawn(|| {
-            let result = put(&publishers, zid, small, frames, counters);
+            let result = put(
+                &publishers,
+                options.frame_encoding,
+                zid,
+                small,
+                frames,
+                counters,
+            );
             put_failed.store(result.is_err(), Ordering::Relaxed);
             result
         });
@@ -535,6 +544,7 @@ const SEND_QUEUE_FRAMES: usize = 4;
 /// queues are closed and empty.
 fn put(
     publishers: &[(TopicId, zenoh::pubsub::Publisher<'_>)],
+    frame_encoding: envelope::Encoding,
     zid: &str,
     small: crossbeam_channel::Receiver<Outgoing>,
     frames: crossbeam_channel::Receiver<Outgoing>,
@@ -546,6 +556,13 @@ fn put(
             .find(|(t, _)| *t == topic)
             .map(|(_, p)| p)
             .expect("a publisher per sent topic")
+    };
+    let encoding = |topic: TopicId| {
+        if topic.carries_frames() {
+            frame_encoding
+        } else {
+            envelope::Encoding::Raw
+        }
     };
     let (mut small_open, mut frames_open) = (true, true);
     loop {
@@ -588,7 +605,12 @@ fn put(
             sent_ns: now_ns(),
         };
         publisher
-            .put(envelope::seal(out.topic, from, &out.bytes))
+            .put(envelope::seal(
+                out.topic,
+                from,
+                encoding(out.topic),
+                &out.bytes,
+            ))
             .wait()
             .map_err(|e| anyhow::anyhow!("sending on {}: {e}", out.topic.name()))?;
         Counters::add(&counters.sent[out.topic.index()], 1);
@@ -619,7 +641,8 @@ fn receive(
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
         };
         n += 1;
-        let checked = admit(topic, &bytes, &mut last, clocks, counters);
+        let mut scratch = Vec::new();
+        let checked = admit(topic, &bytes, &mut scratch, &mut last, clocks, counters);
         let mut message = match checked {
             Ok(message) => message,
             Err(why) => {
@@ -656,11 +679,12 @@ impl<'a> Admitted<'a> {
 fn admit<'a>(
     topic: TopicId,
     bytes: &'a [u8],
+    scratch: &'a mut Vec<u8>,
     last: &mut HashMap<(String, TopicId), u64>,
     clocks: &Clocks<'_>,
     counters: &Counters,
 ) -> Result<Admitted<'a>, String> {
-    let opened = envelope::open(topic, bytes)?;
+    let opened = envelope::open(topic, bytes, scratch)?;
     let from = opened.from;
     let seen = last.entry((from.sender.to_string(), topic)).or_insert(0);
     if from.seq <= *seen {

@@ -33,6 +33,10 @@ struct Args {
     /// Zenoh endpoint of the other side (repeatable), e.g. `tcp/10.0.0.2:7447`.
     #[arg(long)]
     connect: Vec<String>,
+    /// How frames travel: `none` (as in shared memory) or `zstd`
+    /// (lossless, level 1: for a link slower than the frames).
+    #[arg(long, value_parser = ["none", "zstd"], default_value = "none")]
+    compress_frames: String,
     /// How long the link may stay silent before it counts as cut, ms; then
     /// the connecting side connects again by itself.
     #[arg(long, default_value_t = bridge::DEFAULT_LEASE_MS)]
@@ -57,6 +61,11 @@ fn run(args: Args) -> Result<()> {
         listen: args.listen,
         connect: args.connect,
         lease_ms: args.lease_ms,
+        frame_encoding: if args.compress_frames == "zstd" {
+            bridge::envelope::Encoding::Zstd
+        } else {
+            bridge::envelope::Encoding::Raw
+        },
     };
     let counters = Counters::default();
     let stop = AtomicBool::new(false);

@@ -8,7 +8,11 @@
 //!   prefix: shared memory, the sending bridge, the link, the receiving
 //!   bridge, shared memory.
 //!
-//! Latency is the taking time less the frame's publication time (the bridge
+//! - Bridge hop, compressed: the same with the bridges compressing frames
+//!   (`--compress-frames zstd`).
+//!
+//! The pixels are a real photograph's (grey), so that compression sees
+//! real texture. Latency is the taking time less the frame's publication time (the bridge
 //! moves the latter onto the receiving clock: on one host its estimate is
 //! off by microseconds, within the uncertainty the bridge logs), at 200
 //! frames per second. Throughput is what arrives per second when the
@@ -101,7 +105,7 @@ fn measure(
     let publisher = bus.frame_publisher::<topics::Frames>(size).unwrap();
     let flags = (AtomicBool::new(false), AtomicBool::new(false));
     let (done, arrived) = (&flags.0, &flags.1);
-    let pixels = vec![7u8; size / 2];
+    let pixels = photo_pixels(size / 2);
     std::thread::scope(|s| {
         let (ready_tx, ready) = crossbeam_channel::bounded(1);
         let taking = s.spawn(move || {
@@ -185,6 +189,19 @@ fn measure(
     })
 }
 
+/// `n` grey pixels of a real photograph (repeated if it is smaller).
+fn photo_pixels(n: usize) -> Vec<u8> {
+    use opencv::prelude::*;
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/data/real_markers/eurobot/eurobot_01.jpg"
+    );
+    let image = opencv::imgcodecs::imread(path, opencv::imgcodecs::IMREAD_GRAYSCALE).unwrap();
+    let bytes = image.data_bytes().unwrap();
+    assert!(!bytes.is_empty(), "{path}: no image");
+    bytes.iter().copied().cycle().take(n).collect()
+}
+
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let (bins, sizes, n, flood) = if full {
@@ -202,75 +219,93 @@ fn main() {
             Duration::from_millis(300),
         )
     };
-    // The local hop on a prefix of its own, which no bridge reads.
-    let (a, b, local) = (
-        tests::unique_prefix("hop_a"),
-        tests::unique_prefix("hop_b"),
-        tests::unique_prefix("hop_local"),
-    );
-    let port = TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let namespace = format!("mirror/{a}");
-    let _sending = bridge(
-        &bins,
-        &[
-            "--prefix",
-            &a,
-            "--namespace",
-            &namespace,
-            "--send",
-            "frames",
-            "--listen",
-            &endpoint,
-        ],
-    );
-    let _receiving = bridge(
-        &bins,
-        &[
-            "--prefix",
-            &b,
-            "--namespace",
-            &namespace,
-            "--receive",
-            "frames",
-            "--connect",
-            &endpoint,
-        ],
-    );
+    // The local hop on a prefix of its own, which no bridge reads; each
+    // pair of bridges between two prefixes of its own.
+    let prefix = tests::unique_prefix;
+    let local = prefix("hop_local");
+    let pair = |name: &str, extra: &[&str]| {
+        let (a, b) = (prefix(&format!("{name}_a")), prefix(&format!("{name}_b")));
+        let port = TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let ns = format!("mirror/{a}");
+        let common = [&["--namespace", &ns][..], extra].concat();
+        let sending = bridge(
+            &bins,
+            &[
+                &common[..],
+                &["--prefix", &a, "--send", "frames", "--listen", &endpoint],
+            ]
+            .concat(),
+        );
+        let receiving = bridge(
+            &bins,
+            &[
+                &common[..],
+                &[
+                    "--prefix",
+                    &b,
+                    "--receive",
+                    "frames",
+                    "--connect",
+                    &endpoint,
+                ],
+            ]
+            .concat(),
+        );
+        (a, b, [sending, receiving])
+    };
+    let (a, b, _raw) = pair("hop", &[]);
+    let (za, zb, _zstd) = pair("hopz", &["--compress-frames", "zstd"]);
     println!(
-        "{:>9} | {:>21} | {:>21} | {:>10} | {:>19}",
-        "payload", "local p50/p99 us", "bridge p50/p99 us", "p50 ratio", "frames/s local/bridge"
+        "{:>9} | {:>17} | {:>17} | {:>17} | {:>9} | {:>26} | {:>5}",
+        "payload",
+        "local p50/p99 us",
+        "bridge p50/p99",
+        "zstd p50/p99",
+        "p50 ratio",
+        "frames/s local/bridge/zstd",
+        "zstd%"
     );
     let mut rows = Vec::new();
     for &size in sizes {
         let local = measure(&local, &local, size, n, flood);
         let hop = measure(&a, &b, size, n, flood);
-        let (l50, l99) = (
-            percentile(&local.latencies_us, 0.5),
-            percentile(&local.latencies_us, 0.99),
-        );
-        let (b50, b99) = (
-            percentile(&hop.latencies_us, 0.5),
-            percentile(&hop.latencies_us, 0.99),
-        );
+        let zhop = measure(&za, &zb, size, n, flood);
+        let p = |m: &Measured| {
+            (
+                percentile(&m.latencies_us, 0.5),
+                percentile(&m.latencies_us, 0.99),
+            )
+        };
+        let ((l50, l99), (b50, b99), (z50, z99)) = (p(&local), p(&hop), p(&zhop));
+        let pixels = photo_pixels(size.0);
+        let zstd_share = 100.0
+            * zstd::bulk::compress(&pixels, bridge::envelope::ZSTD_LEVEL)
+                .unwrap()
+                .len() as f64
+            / size.0 as f64;
         println!(
-            "{:>9} | {:>10.1} {:>10.1} | {:>10.1} {:>10.1} | {:>10.1} | {:>9.0} {:>9.0}",
+            "{:>9} | {:>8.0} {:>8.0} | {:>8.0} {:>8.0} | {:>8.0} {:>8.0} | {:>9.1} | {:>8.0} {:>8.0} {:>8.0} | {:>5.1}",
             size.0,
             l50,
             l99,
             b50,
             b99,
+            z50,
+            z99,
             b50 / l50,
             local.throughput_per_s,
-            hop.throughput_per_s
+            hop.throughput_per_s,
+            zhop.throughput_per_s,
+            zstd_share
         );
         assert!(
-            !hop.latencies_us.is_empty(),
-            "no frame of {} B crossed the bridge",
+            !hop.latencies_us.is_empty() && !zhop.latencies_us.is_empty(),
+            "no frame of {} B crossed a bridge",
             size.0
         );
         rows.push(json!({
@@ -281,6 +316,10 @@ fn main() {
             "bridge": {"p50_us": b50, "p99_us": b99, "count": hop.latencies_us.len(),
                        "frames_per_s": hop.throughput_per_s,
                        "mb_per_s": hop.throughput_per_s * size.0 as f64 / 1e6},
+            "bridge_zstd": {"p50_us": z50, "p99_us": z99, "count": zhop.latencies_us.len(),
+                       "frames_per_s": zhop.throughput_per_s,
+                       "mb_per_s": zhop.throughput_per_s * size.0 as f64 / 1e6,
+                       "compressed_percent": zstd_share},
         }));
     }
     if full {

@@ -266,6 +266,7 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
             seq: 1,
             sent_ns: 0,
         },
+        bridge::envelope::Encoding::Raw,
         bytemuck::bytes_of(&messages::MirrorSample::default()),
     );
     // Time for the rogue's link to come up, then for its message to arrive.
