@@ -2,7 +2,7 @@
 //! prefixes (no shared memory in common between the sides' topics), the
 //! receiving one in a time namespace whose CLOCK_MONOTONIC is a day ahead
 //! (as another host's would be): joint states and stereo frames cross in
-//! order, unchanged but for their times, which arrive on the receiving
+//! order (frames compressed on the link), unchanged but for their times, which arrive on the receiving
 //! side's clock; a message of another layout put on the link is refused,
 //! counted and named in the log with both layouts; both bridges stop cleanly
 //! on SIGTERM.
@@ -135,6 +135,9 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
         &namespace,
         "--send",
         "joint_state,frames",
+        // Frames compressed on the link: they must still arrive unchanged.
+        "--compress-frames",
+        "zstd",
         "--listen",
         &robot_listen,
     ]);
