@@ -21,8 +21,8 @@
 //! simulated head's 2 x 640 x 480.
 //!
 //! Run: `cargo bench -p tests --bench hop` (optimised bridges; writes
-//! `target/bench/hop.json`); under `cargo test` one short pass of two
-//! sizes, to check it works.
+//! `target/bench/hop.json`); under `cargo test` a short pass (50 frames,
+//! 0.5 s of flooding per size), to check it works.
 
 use std::net::TcpListener;
 use std::process::{Child, Command, Stdio};
@@ -204,20 +204,10 @@ fn photo_pixels(n: usize) -> Vec<u8> {
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
-    let (bins, sizes, n, flood) = if full {
-        (
-            tests::release_stage_binaries(),
-            &SIZES[..],
-            400,
-            Duration::from_secs(2),
-        )
+    let (bins, n, flood) = if full {
+        (tests::release_stage_binaries(), 400, Duration::from_secs(2))
     } else {
-        (
-            tests::stage_binaries(),
-            &[SIZES[0], SIZES[4]][..],
-            20,
-            Duration::from_millis(300),
-        )
+        (tests::stage_binaries(), 50, Duration::from_millis(500))
     };
     // The local hop on a prefix of its own, which no bridge reads; each
     // pair of bridges between two prefixes of its own.
@@ -271,7 +261,7 @@ fn main() {
         "zstd%"
     );
     let mut rows = Vec::new();
-    for &size in sizes {
+    for size in SIZES {
         let local = measure(&local, &local, size, n, flood);
         let hop = measure(&a, &b, size, n, flood);
         let zhop = measure(&za, &zb, size, n, flood);
