@@ -87,6 +87,11 @@ impl Estimator {
         self.recent.push_back((trip.t4, offset));
     }
 
+    /// When (this clock, ns) the last round trip that counted came back.
+    pub fn last_trip_ns(&self) -> Option<i64> {
+        self.recent.back().map(|&(at, _)| at)
+    }
+
     /// The best estimate at `now_ns` (this side's clock), if any round trip
     /// has been made.
     pub fn estimate(&self, now_ns: i64) -> Option<Offset> {

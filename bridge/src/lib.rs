@@ -292,6 +292,7 @@ pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<
         session: &session,
         options,
         senders: Mutex::new(HashMap::new()),
+        unanswered: Mutex::new(HashMap::new()),
     };
     // `done` ends the receiving and clock sides when the sending side ends;
     // `failed` ends the sending side when the receiving side fails.
@@ -333,7 +334,20 @@ struct Clocks<'a> {
     options: &'a Options,
     /// By sender's zenoh id.
     senders: Mutex<HashMap<String, Estimator>>,
+    /// When (this clock, ns) a sender without an offset last failed to
+    /// answer: its messages are refused at once for a while, so that a
+    /// sender that never answers (or a stream of made-up ids) cannot hold
+    /// the receiving side in round trips.
+    unanswered: Mutex<HashMap<String, i64>>,
 }
+
+/// How long a sender without an offset that did not answer is not asked
+/// again.
+const ASK_AGAIN_AFTER_NS: i64 = 5_000_000_000;
+
+/// A sender that answered no round trip for this long is forgotten (it has
+/// gone; if it comes back, it is asked again).
+const FORGET_AFTER_NS: i64 = 10_000_000_000;
 
 impl Clocks<'_> {
     /// One round trip to `zid`, if it answers in time.
@@ -374,12 +388,25 @@ impl Clocks<'_> {
         if let Some(o) = self.estimate(zid) {
             return Some(o);
         }
+        let asked_at = {
+            let unanswered = self.unanswered.lock().unwrap_or_else(|p| p.into_inner());
+            unanswered.get(zid).copied()
+        };
+        if asked_at.is_some_and(|at| now_ns() - at < ASK_AGAIN_AFTER_NS) {
+            return None;
+        }
         for _ in 0..4 {
             if let Some(trip) = self.round_trip(zid) {
                 self.add(zid, trip);
             }
         }
-        let o = self.estimate(zid)?;
+        let Some(o) = self.estimate(zid) else {
+            let mut unanswered = self.unanswered.lock().unwrap_or_else(|p| p.into_inner());
+            let now = now_ns();
+            unanswered.retain(|_, at| now - *at < ASK_AGAIN_AFTER_NS);
+            unanswered.insert(zid.to_string(), now);
+            return None;
+        };
         tracing::info!(
             sender = zid,
             ahead_s = o.ahead_ns as f64 * 1e-9,
@@ -402,6 +429,20 @@ impl Clocks<'_> {
                     self.add(&zid, trip);
                 }
             }
+            let mut senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
+            senders.retain(|zid, e| {
+                let answered = e
+                    .last_trip_ns()
+                    .is_some_and(|at| now_ns() - at < FORGET_AFTER_NS);
+                if !answered {
+                    tracing::info!(
+                        sender = zid,
+                        "a sender stopped answering round trips: forgotten"
+                    );
+                }
+                answered
+            });
+            drop(senders);
             if logged.elapsed() > Duration::from_secs(30) {
                 self.log("now");
                 logged = Instant::now();

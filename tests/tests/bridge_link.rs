@@ -283,6 +283,32 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
         joints_in.receive().unwrap().is_none(),
         "the foreign message was published"
     );
+    // A message of the right layout from a made-up sender that answers no
+    // round trip: its times cannot be moved onto this clock. Refused after
+    // four unanswered trips (0.5 s each); the next one at once.
+    let made_up = |seq: u64| {
+        bridge::envelope::seal(
+            TopicId::JointState,
+            bridge::envelope::From {
+                sender: "0b",
+                seq,
+                sent_ns: 0,
+            },
+            bridge::envelope::Encoding::Raw,
+            bytemuck::bytes_of(&joint_state(seq)),
+        )
+    };
+    for seq in 1..=2 {
+        rogue
+            .put(format!("{namespace}/joint_state"), made_up(seq))
+            .wait()
+            .unwrap();
+    }
+    std::thread::sleep(Duration::from_millis(3000));
+    assert!(
+        joints_in.receive().unwrap().is_none(),
+        "a message from a sender without a clock offset was published"
+    );
     rogue.close().wait().unwrap();
 
     let (ok_send, _) = stop(sending);
@@ -298,8 +324,12 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
         "no refusal naming both layouts:\n{log}"
     );
     assert!(
-        log.contains("refused=1"),
-        "the refusal is not counted:\n{log}"
+        log.contains("no clock offset to 0b: it does not answer round trips"),
+        "no refusal of the made-up sender:\n{log}"
+    );
+    assert!(
+        log.contains("refused=3"),
+        "the refusals are not counted:\n{log}"
     );
     // Every joint state sent after the probes, and at least one probe.
     let count = |name: &str| counter(&log, name);
