@@ -2,14 +2,15 @@
 # Installs what the workspace needs on a fresh Debian 12 machine: OpenCV 4.6
 # with the contrib aruco module, clang for the opencv crate's bindings,
 # Python with venv for the tests' independent MCAP reader, and Node.js with
-# npm for the tests' Foxglove client (unless a Node.js is already there).
+# npm for the tests' Foxglove client (unless a Node.js is already there),
+# iproute2 for the bridge tests' network namespaces.
 # Installs the Python arm-driver SDK (python/mirror_driver, on PyPI's
 # iceoryx2 bindings) into target/pyenv. Does nothing when everything is
 # already there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-packages=(pkg-config clang libclang-dev libopencv-dev libopencv-contrib-dev python3 python3-venv)
+packages=(pkg-config clang libclang-dev libopencv-dev libopencv-contrib-dev python3 python3-venv iproute2)
 # A Node.js installed otherwise (NodeSource, nvm) brings its own npm; Debian's would conflict.
 command -v npm >/dev/null || packages+=(nodejs npm)
 missing=()
