@@ -172,26 +172,6 @@ impl Counters {
         slots[topic.index()].load(Ordering::Relaxed)
     }
 
-    /// Messages sent on `topic`.
-    pub fn sent(&self, topic: TopicId) -> u64 {
-        Self::get(&self.sent, topic)
-    }
-
-    /// Messages sent on `topic` while no receiver was there.
-    pub fn unheard(&self, topic: TopicId) -> u64 {
-        Self::get(&self.unheard, topic)
-    }
-
-    /// Messages received on `topic`.
-    pub fn received(&self, topic: TopicId) -> u64 {
-        Self::get(&self.received, topic)
-    }
-
-    /// Messages on `topic` that the sender numbered and never came.
-    pub fn lost(&self, topic: TopicId) -> u64 {
-        Self::get(&self.lost, topic)
-    }
-
     /// The stage stats with every counter of `options`' topics added.
     pub fn into_stats(self, options: &Options) -> StageStats {
         let mut stats = self.stats.into_inner().unwrap_or_else(|p| p.into_inner());
@@ -490,11 +470,6 @@ fn send(
             .map_err(|e| anyhow::anyhow!("publishing {}: {e}", options.key(topic)))?;
         publishers.push((topic, publisher));
     }
-    let heard = |p: &zenoh::pubsub::Publisher<'_>| {
-        p.matching_status()
-            .wait()
-            .is_ok_and(|status| status.matching())
-    };
     // Nothing is taken from shared memory before someone receives it.
     let mut waiting_since = Instant::now();
     while let Some((topic, _)) = publishers.iter().find(|(_, p)| !heard(p)) {
@@ -565,6 +540,14 @@ fn send(
     })
 }
 
+/// Whether a receiver of `publisher`'s key is on the link.
+fn heard(publisher: &zenoh::pubsub::Publisher<'_>) -> bool {
+    publisher
+        .matching_status()
+        .wait()
+        .is_ok_and(|status| status.matching())
+}
+
 /// A message taken from shared memory, waiting for the link.
 struct Outgoing {
     topic: TopicId,
@@ -633,11 +616,7 @@ fn put(
             }
         };
         let publisher = publisher(out.topic);
-        let heard = publisher
-            .matching_status()
-            .wait()
-            .is_ok_and(|status| status.matching());
-        if !heard {
+        if !heard(publisher) {
             Counters::add(&counters.unheard[out.topic.index()], 1);
         }
         let from = envelope::From {
@@ -684,7 +663,7 @@ fn receive(
         n += 1;
         let mut scratch = Vec::new();
         let checked = admit(topic, &bytes, &mut scratch, &mut last, clocks, counters);
-        let mut message = match checked {
+        let message = match checked {
             Ok(message) => message,
             Err(why) => {
                 Counters::add(&counters.refused, 1);
@@ -699,19 +678,10 @@ fn receive(
                     .with_context(|| format!("publishing {} here", topic.name()))?,
             ),
         };
-        publisher.publish(&message.take())?;
+        publisher.publish(&message)?;
         Counters::add(&counters.received[topic.index()], 1);
     }
     Ok(())
-}
-
-/// A received message ready to publish.
-struct Admitted<'a>(Option<messages::topics::Message<'a>>);
-
-impl<'a> Admitted<'a> {
-    fn take(&mut self) -> messages::topics::Message<'a> {
-        self.0.take().expect("taken once")
-    }
 }
 
 /// Opens an envelope, checks its order and stamps, counts what the sender
@@ -724,7 +694,7 @@ fn admit<'a>(
     last: &mut HashMap<(String, TopicId), u64>,
     clocks: &Clocks<'_>,
     counters: &Counters,
-) -> Result<Admitted<'a>, String> {
+) -> Result<messages::topics::Message<'a>, String> {
     let opened = envelope::open(topic, bytes, scratch)?;
     let from = opened.from;
     let seen = last.entry((from.sender.to_string(), topic)).or_insert(0);
@@ -764,5 +734,5 @@ fn admit<'a>(
     let mut stats = counters.stats.lock().unwrap_or_else(|p| p.into_inner());
     stats.record("link", now.saturating_sub(sent_here));
     stats.record("clock_uncertainty", offset.uncertainty_ns);
-    Ok(Admitted(Some(message)))
+    Ok(message)
 }
