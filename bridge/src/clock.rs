@@ -13,6 +13,12 @@
 //! keeps the one with the smallest bound (a trip delayed by a busy link or
 //! scheduler has a large one), aged by how far two clocks may drift apart
 //! since it was made.
+//!
+//! A new estimate does not move messages already stamped: it is [`Applied`]
+//! to stamps the sender makes from then on. So two messages with the same
+//! stamp (a frame and its detections, crossing milliseconds apart) are
+//! always moved by the same offset, stay paired, and a recording of them
+//! replays as it was made.
 
 use std::collections::VecDeque;
 
@@ -110,6 +116,55 @@ impl Estimator {
     }
 }
 
+/// How long (on the sender's clock) an offset stays on record after a newer
+/// one took over, for messages that cross late.
+pub const KEEP_APPLIED_NS: i64 = 60_000_000_000;
+
+/// The offsets applied to one sender's stamps, each from a stamp (on the
+/// sender's clock) on.
+#[derive(Debug, Default, Clone)]
+pub struct Applied {
+    /// First stamp it applies to, and the offset; in order.
+    segments: VecDeque<(i64, Offset)>,
+}
+
+impl Applied {
+    /// Adopts `estimate`, made at `now_ns` on this clock, if it moves stamps
+    /// otherwise than the offset in force: for every stamp after any a
+    /// message sent so far can carry (the sender's now, plus the estimate's
+    /// uncertainty and `slack_ns`; a later stamp is refused as ahead of
+    /// its time). The first estimate applies to every stamp.
+    pub fn adopt(&mut self, estimate: Offset, now_ns: i64, slack_ns: i64) {
+        let sender_now = now_ns.saturating_add(estimate.ahead_ns);
+        match self.segments.back() {
+            None => self.segments.push_back((i64::MIN, estimate)),
+            Some((_, o)) if o.ahead_ns == estimate.ahead_ns => {}
+            Some(_) => {
+                let from = sender_now
+                    .saturating_add(estimate.uncertainty_ns)
+                    .saturating_add(slack_ns);
+                self.segments.push_back((from, estimate));
+            }
+        }
+        while self.segments.len() > 1
+            && self.segments[1].0 < sender_now.saturating_sub(KEEP_APPLIED_NS)
+        {
+            self.segments.pop_front();
+        }
+    }
+
+    /// The offset that moves a stamp `stamp_ns` of the sender's clock (one
+    /// older than the oldest on record: the oldest).
+    pub fn at(&self, stamp_ns: i64) -> Option<Offset> {
+        self.segments
+            .iter()
+            .rev()
+            .find(|(from, _)| *from <= stamp_ns)
+            .or(self.segments.front())
+            .map(|&(_, o)| o)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -198,5 +253,35 @@ mod tests {
         }
         // The newest: made at 10_010_025, aged 9.99 ms (999 ns).
         assert_eq!(e.estimate(20_000_000).unwrap().uncertainty_ns, 5_000 + 999);
+    }
+
+    #[test]
+    fn a_new_offset_moves_only_stamps_made_after_it() {
+        let offset = |ahead_ns| Offset {
+            ahead_ns,
+            uncertainty_ns: 1_000,
+        };
+        let mut applied = Applied::default();
+        assert_eq!(applied.at(0), None);
+        let ahead = 86_400_000_000_000;
+        applied.adopt(offset(ahead), 1_000_000_000, 20_000_000);
+        // The first applies to everything, even stamps older than it.
+        assert_eq!(applied.at(i64::MIN).unwrap().ahead_ns, ahead);
+        // Two estimates later (the second the same) the offset is 5 us
+        // more: stamps the sender has made up to now, and its uncertainty
+        // and the slack beyond, keep the old one.
+        applied.adopt(offset(ahead), 1_500_000_000, 20_000_000);
+        applied.adopt(offset(ahead + 5_000), 2_000_000_000, 20_000_000);
+        let boundary = 2_000_000_000 + ahead + 5_000 + 1_000 + 20_000_000;
+        assert_eq!(applied.at(boundary - 1).unwrap().ahead_ns, ahead);
+        assert_eq!(applied.at(boundary).unwrap().ahead_ns, ahead + 5_000);
+        // A frame and its detections (the same stamp) crossing on either
+        // side of the change are moved alike.
+        let stamp = 1_999_000_000 + ahead;
+        assert_eq!(applied.at(stamp), applied.at(stamp));
+        assert_eq!(applied.at(stamp).unwrap().ahead_ns, ahead);
+        // A minute on, the old offset is dropped; older stamps take the oldest kept.
+        applied.adopt(offset(ahead + 9_000), 70_000_000_000, 20_000_000);
+        assert_eq!(applied.at(stamp).unwrap().ahead_ns, ahead + 5_000);
     }
 }

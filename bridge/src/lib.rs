@@ -40,7 +40,7 @@ use messages::{AnyPublisher, AnySubscriber, Bus, Rejections, now_ns};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
-use crate::clock::{Estimator, Offset, RoundTrip};
+use crate::clock::{Applied, Estimator, Offset, RoundTrip};
 
 /// Where the link goes and what crosses it.
 #[derive(Debug, Clone)]
@@ -102,6 +102,12 @@ impl Options {
     /// The zenoh key on which the bridge `zid` answers round trips.
     pub fn clock_key(&self, zid: &str) -> String {
         format!("{}/_clock/{zid}", self.namespace)
+    }
+
+    /// The zenoh key on which the bridge `zid` (or `*`: every bridge) tells
+    /// the layout it receives `topic` in.
+    pub fn layout_key(&self, topic: TopicId, zid: &str) -> String {
+        format!("{}/_layout/{}/{zid}", self.namespace, topic.name())
     }
 
     /// The zenoh configuration: a peer at the given endpoints, without
@@ -243,6 +249,27 @@ pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<
         .map_err(|e| {
             anyhow::anyhow!("answering round trips on {}: {e}", options.clock_key(&zid))
         })?;
+    // The layouts this side receives in: the sending side checks them
+    // before it sends (and this side checks every message's).
+    let layout_answers = options
+        .receive
+        .iter()
+        .map(|&topic| {
+            let key = options.layout_key(topic, &zid);
+            let answer_key = key.clone();
+            session
+                .declare_queryable(&key)
+                .callback(move |query| {
+                    // Answered on this bridge's own key: the asker learns whose.
+                    let name = topic.layout().type_name.as_bytes().to_vec();
+                    if let Err(e) = query.reply(answer_key.as_str(), name).wait() {
+                        tracing::debug!("answering a layout question: {e}");
+                    }
+                })
+                .wait()
+                .map_err(|e| anyhow::anyhow!("answering layout questions on {key}: {e}"))
+        })
+        .collect::<Result<Vec<_>>>()?;
     let (deliveries, queue) = crossbeam_channel::bounded::<(TopicId, Vec<u8>)>(RECEIVE_QUEUE);
     let queue_full = Arc::new(AtomicU64::new(0));
     let mut subscriptions = Vec::new();
@@ -296,6 +323,7 @@ pub fn run(options: &Options, counters: &Counters, stop: &AtomicBool) -> Result<
     Counters::add(&counters.queue_full, queue_full.load(Ordering::Relaxed));
     clocks.log("at exit");
     drop(subscriptions);
+    drop(layout_answers);
     drop(clock_answers);
     session
         .close()
@@ -313,12 +341,20 @@ struct Clocks<'a> {
     session: &'a zenoh::Session,
     options: &'a Options,
     /// By sender's zenoh id.
-    senders: Mutex<HashMap<String, Estimator>>,
+    senders: Mutex<HashMap<String, SenderClock>>,
     /// When (this clock, ns) a sender without an offset last failed to
     /// answer: its messages are refused at once for a while, so that a
     /// sender that never answers (or a stream of made-up ids) cannot hold
     /// the receiving side in round trips.
     unanswered: Mutex<HashMap<String, i64>>,
+}
+
+/// What is known of one sender's clock: the estimate, and the offsets
+/// applied to its stamps.
+#[derive(Default)]
+struct SenderClock {
+    estimator: Estimator,
+    applied: Applied,
 }
 
 /// How long a sender without an offset that did not answer is not asked
@@ -354,17 +390,36 @@ impl Clocks<'_> {
 
     fn add(&self, zid: &str, trip: RoundTrip) {
         let mut senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
-        senders.entry(zid.to_string()).or_default().add(trip);
+        senders
+            .entry(zid.to_string())
+            .or_default()
+            .estimator
+            .add(trip);
     }
 
     fn estimate(&self, zid: &str) -> Option<Offset> {
         let senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
-        senders.get(zid)?.estimate(now_ns())
+        senders.get(zid)?.estimator.estimate(now_ns())
     }
 
-    /// The offset to the clock of `zid`; a sender not heard from before is
-    /// asked a few round trips first.
-    fn offset(&self, zid: &str) -> Option<Offset> {
+    /// The offset that moves a stamp `stamp_ns` of `zid` onto this clock
+    /// (see [`Applied`]), and the bound on its error now; a sender not
+    /// heard from before is asked a few round trips first.
+    fn offset(&self, zid: &str, stamp_ns: i64) -> Option<(Offset, i64)> {
+        let current = self.current(zid)?;
+        let mut senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
+        let sender = senders.get_mut(zid)?;
+        sender.applied.adopt(current, now_ns(), STAMP_SLACK_NS);
+        let applied = sender.applied.at(stamp_ns)?;
+        let bound = current
+            .uncertainty_ns
+            .saturating_add(applied.ahead_ns.abs_diff(current.ahead_ns) as i64);
+        Some((applied, bound))
+    }
+
+    /// The current estimate of the offset to the clock of `zid`; a sender
+    /// not heard from before is asked a few round trips first.
+    fn current(&self, zid: &str) -> Option<Offset> {
         if let Some(o) = self.estimate(zid) {
             return Some(o);
         }
@@ -412,6 +467,7 @@ impl Clocks<'_> {
             let mut senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
             senders.retain(|zid, e| {
                 let answered = e
+                    .estimator
                     .last_trip_ns()
                     .is_some_and(|at| now_ns() - at < FORGET_AFTER_NS);
                 if !answered {
@@ -433,7 +489,7 @@ impl Clocks<'_> {
 
     fn log(&self, when: &str) {
         let senders = self.senders.lock().unwrap_or_else(|p| p.into_inner());
-        for (zid, e) in senders.iter() {
+        for (zid, e) in senders.iter().map(|(z, s)| (z, &s.estimator)) {
             if let Some(o) = e.estimate(now_ns()) {
                 tracing::info!(
                     sender = zid,
@@ -480,6 +536,9 @@ fn send(
             tracing::info!("still waiting for a receiver of {}", options.key(*topic));
             waiting_since = Instant::now();
         }
+    }
+    for (topic, _) in &publishers {
+        check_layouts(options, session, *topic)?;
     }
     let taps = publishers
         .iter()
@@ -538,6 +597,30 @@ fn send(
             .map_err(|_| anyhow::anyhow!("the putting thread panicked"))?;
         taken.and(put)
     })
+}
+
+/// Asks every receiving bridge on the link which layout it takes `topic`
+/// in; one that differs from this side's is an error naming both (the two
+/// hosts run builds that do not agree: nothing of the topic would open).
+fn check_layouts(options: &Options, session: &zenoh::Session, topic: TopicId) -> Result<()> {
+    let ours = topic.layout().type_name;
+    let replies = session
+        .get(options.layout_key(topic, "*"))
+        .timeout(ROUND_TRIP_WITHIN)
+        .wait()
+        .map_err(|e| anyhow::anyhow!("asking the receivers' layouts of {}: {e}", topic.name()))?;
+    while let Ok(reply) = replies.recv() {
+        let Ok(sample) = reply.result() else { continue };
+        let theirs = String::from_utf8_lossy(&sample.payload().to_bytes()).into_owned();
+        if theirs != ours {
+            let receiver = sample.key_expr().as_str().rsplit('/').next().unwrap_or("?");
+            bail!(
+                "layout mismatch on {}: this side's is {ours}, the receiver {receiver}'s is {theirs}",
+                topic.name()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Whether a receiver of `publisher`'s key is on the link.
@@ -712,27 +795,30 @@ fn admit<'a>(
         Counters::add(&counters.lost[topic.index()], from.seq - *seen - 1);
     }
     *seen = from.seq;
-    let offset = clocks.offset(from.sender).ok_or_else(|| {
-        format!(
-            "no clock offset to {}: it does not answer round trips",
-            from.sender
-        )
-    })?;
     let mut message = opened.message;
+    let (offset, uncertainty_ns) =
+        clocks
+            .offset(from.sender, message.stamp_ns())
+            .ok_or_else(|| {
+                format!(
+                    "no clock offset to {}: it does not answer round trips",
+                    from.sender
+                )
+            })?;
     message.shift_clock(offset.ahead_ns.saturating_neg());
     let now = now_ns();
     let ahead = message.stamp_ns().saturating_sub(now);
-    if ahead > offset.uncertainty_ns.saturating_add(STAMP_SLACK_NS) {
+    if ahead > uncertainty_ns.saturating_add(STAMP_SLACK_NS) {
         return Err(format!(
             "{} stamp {:.3} s ahead of this host's clock (offset uncertainty {:.0} us)",
             topic.name(),
             ahead as f64 * 1e-9,
-            offset.uncertainty_ns as f64 * 1e-3
+            uncertainty_ns as f64 * 1e-3
         ));
     }
     let sent_here = from.sent_ns.saturating_sub(offset.ahead_ns);
     let mut stats = counters.stats.lock().unwrap_or_else(|p| p.into_inner());
     stats.record("link", now.saturating_sub(sent_here));
-    stats.record("clock_uncertainty", offset.uncertainty_ns);
+    stats.record("clock_uncertainty", uncertainty_ns);
     Ok(message)
 }

@@ -6,6 +6,8 @@ use anyhow::{Context, Result, bail};
 use mirror_proc::calibrate::Method;
 use serde::{Deserialize, Serialize};
 
+use crate::split::SplitConfig;
+
 /// The robot and scene a run simulates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -86,6 +88,10 @@ pub struct Config {
     /// absent: the built-in simulated arm, `sim_arm`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arm_driver: Option<String>,
+    /// A run split across a robot and a workstation (`pipeline --side`):
+    /// where the tracker runs and how frames cross.
+    #[serde(default)]
+    pub split: SplitConfig,
 }
 
 /// `sim_arm`'s joint-position rate unless the config says: that of a
@@ -150,6 +156,14 @@ impl Config {
                 "{}: key fps: {} is not in (0, 1000]",
                 path.display(),
                 config.fps
+            );
+        }
+        if let Some(ms) = config.split.lease_ms
+            && !(100..=600_000).contains(&ms)
+        {
+            bail!(
+                "{}: key split.lease_ms: {ms} is not within 100 ms to 10 min",
+                path.display()
             );
         }
         if !(config.arm_rate_hz > 0.0 && config.arm_rate_hz <= 1000.0) {
@@ -229,5 +243,30 @@ mod tests {
         assert!(e.ends_with("key arm_rate_hz: 0 is not in (0, 1000]"), "{e}");
         let config = load(GOOD, Overrides::default()).unwrap();
         assert_eq!(config.arm_rate_hz, 250.0, "the default");
+        assert_eq!(
+            config.split.tracker,
+            crate::split::Side::Robot,
+            "the default"
+        );
+        let e = load(
+            &format!("{GOOD}[split]\ntracker = \"cloud\"\n"),
+            Overrides::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("unknown variant `cloud`") && e.contains("workstation"),
+            "{e}"
+        );
+        let e = load(
+            &format!("{GOOD}[split]\nlease_ms = 5\n"),
+            Overrides::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.ends_with("key split.lease_ms: 5 is not within 100 ms to 10 min"),
+            "{e}"
+        );
     }
 }

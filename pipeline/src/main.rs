@@ -9,12 +9,14 @@
 //! When the plan is done `mirror_proc` writes `report.json`; the launcher
 //! stops the rest, evaluates the calibration against the simulator's truth
 //! and writes `OUT/report.json` ([`report`]). Ctrl-C stops every stage
-//! cleanly.
+//! cleanly. With `--side robot|workstation` it runs one side of a run split
+//! across two hosts, with a `bridge` to the other ([`split`]).
 
 mod config;
 mod replay;
 mod report;
 mod run;
+mod split;
 mod stages;
 mod supervise;
 
@@ -30,6 +32,7 @@ use mirror_proc::experiment::PAPER_FIGURES;
 
 use crate::config::{Config, Overrides};
 use crate::run::Run;
+use crate::split::{Link, Side};
 
 /// Run the live pipeline on the simulated robot.
 #[derive(Debug, Parser)]
@@ -86,6 +89,25 @@ struct Args {
     /// `OUT/mirror<i>/trace.json` (Chrome trace format; open it in Perfetto).
     #[arg(long)]
     trace: bool,
+    /// Run one side of a run split across two hosts (both sides from the
+    /// same config): `robot` starts the camera, the arm driver, kinematics
+    /// and (unless the config's `split.tracker` offloads it) the tracker;
+    /// `workstation` the mirror stage and the recorder. A `bridge` on each
+    /// side carries the topics between them (see docs/bridge.md).
+    #[arg(long, value_enum, requires = "endpoint")]
+    side: Option<Side>,
+    /// With --side: zenoh endpoint to listen on (repeatable), e.g.
+    /// `tcp/0.0.0.0:7447` (typically on the robot).
+    #[arg(long, group = "endpoint", requires = "side")]
+    listen: Vec<String>,
+    /// With --side: zenoh endpoint of the other side (repeatable), e.g.
+    /// `tcp/192.168.1.20:7447` (typically on the workstation).
+    #[arg(long, group = "endpoint", requires = "side")]
+    connect: Vec<String>,
+    /// With --side: the bridge's key namespace; both sides give the same,
+    /// a second robot on the same network another.
+    #[arg(long, default_value = split::DEFAULT_NAMESPACE, requires = "side")]
+    namespace: String,
 }
 
 /// What `--replay` publishes.
@@ -118,6 +140,12 @@ enum ReportFormat {
 fn run(args: Args) -> Result<()> {
     if args.no_record && args.live_view.is_some() {
         bail!("--live-view is served by the recorder: it cannot be used with --no-record");
+    }
+    if args.side == Some(Side::Robot) && args.live_view.is_some() {
+        bail!("--live-view is served by the recorder, which runs on the workstation side");
+    }
+    if args.side.is_some() && args.replay.is_some() {
+        bail!("--side cannot be used with --replay: a replay runs on one host");
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create", args.out.display()))?;
@@ -167,6 +195,12 @@ fn run(args: Args) -> Result<()> {
         record: !args.no_record,
         live_view: args.live_view,
         trace: args.trace,
+        link: args.side.map(|side| Link {
+            side,
+            listen: args.listen,
+            connect: args.connect,
+            namespace: args.namespace,
+        }),
         stop,
     };
     let results = match &replay {
@@ -186,7 +220,9 @@ fn run(args: Args) -> Result<()> {
     if args.report == ReportFormat::Json {
         print!("{text}");
     } else {
-        print!("{}", report::table(&results, run.config.method));
+        if args.side != Some(Side::Robot) {
+            print!("{}", report::table(&results, run.config.method));
+        }
         print!("{}", report::latency_table(&results));
         print!("{}", report::cpu_table(&results));
         if replay.is_some() {
@@ -208,12 +244,12 @@ fn run(args: Args) -> Result<()> {
     // A run that ends without a calibration failed, whatever else it did.
     let uncalibrated: Vec<String> = results
         .iter()
-        .filter(|r| r.report.calibration.is_none())
-        .map(|r| {
+        .filter_map(|r| Some((r.mirror, r.report.as_ref()?)))
+        .filter(|(_, report)| report.calibration.is_none())
+        .map(|(mirror, report)| {
             format!(
-                "mirror {}: no calibration: {}",
-                r.mirror,
-                r.report.last_error.as_deref().unwrap_or("no reason given")
+                "mirror {mirror}: no calibration: {}",
+                report.last_error.as_deref().unwrap_or("no reason given")
             )
         })
         .collect();

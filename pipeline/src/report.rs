@@ -15,11 +15,12 @@ use serde::Serialize;
 pub struct PlacementResult {
     /// The mirror placement.
     pub mirror: usize,
-    /// The mirror stage's report.
-    pub report: LiveReport,
+    /// The mirror stage's report (none on the robot side of a split run).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub report: Option<LiveReport>,
     /// Its calibration against the simulator's truth.
     #[serde(flatten)]
-    pub truth: TruthErrors,
+    pub truth: Option<TruthErrors>,
     /// Stage restarts.
     pub restarts: u32,
     /// Wall time of the placement, s.
@@ -206,14 +207,17 @@ pub fn table(results: &[PlacementResult], method: Method) -> String {
     let mut sums = [0.0; 6];
     let mut counts = [0usize; 6];
     for r in results {
-        let e = r.report.evaluation.as_ref();
+        let (Some(report), Some(truth)) = (&r.report, &r.truth) else {
+            continue;
+        };
+        let e = report.evaluation.as_ref();
         let values = [
             e.and_then(|e| e.mirror_3d_mm),
             e.and_then(|e| e.direct_3d_mm),
             e.and_then(|e| e.mirror_2d_px),
             e.and_then(|e| e.direct_2d_px),
-            r.truth.plane_angle_deg,
-            r.truth.hidden_object_error_mm,
+            truth.plane_angle_deg,
+            truth.hidden_object_error_mm,
         ];
         for (i, v) in values.iter().enumerate() {
             if let Some(v) = v {
@@ -230,8 +234,8 @@ pub fn table(results: &[PlacementResult], method: Method) -> String {
             cell(values[3]),
             cell(values[4]),
             cell(values[5]),
-            r.report.train_samples,
-            r.report.test_samples
+            report.train_samples,
+            report.test_samples
         );
     }
     let mean = |i: usize| (counts[i] > 0).then(|| sums[i] / counts[i] as f64);

@@ -18,11 +18,16 @@ use mirror_proc::live::LiveReport;
 
 use crate::config::Config;
 use crate::report::{PlacementResult, TruthErrors};
+use crate::split::{BridgeArgs, Link, Side, crossing, side_of};
 use crate::stages::{StageArgs, subscribers_of};
 use crate::supervise::{Launch, Progress, Supervisor, see, wait_ready};
 
 /// How long the consumers may take to subscribe.
 const READY_WITHIN: Duration = Duration::from_secs(30);
+
+/// How long one side of a split run waits for the other (whose stages
+/// subscribe through the bridge): the other host may be started later.
+const OTHER_SIDE_WITHIN: Duration = Duration::from_secs(600);
 
 /// The settings every placement of a run shares.
 pub struct Run {
@@ -42,6 +47,9 @@ pub struct Run {
     pub live_view: Option<u16>,
     /// Trace every stage step.
     pub trace: bool,
+    /// This host's side of a split run and its link; `None`: every stage
+    /// on this host.
+    pub link: Option<Link>,
     /// Set by Ctrl-C.
     pub stop: Arc<AtomicBool>,
 }
@@ -80,10 +88,19 @@ struct Concluding<'a, 'b> {
     total: usize,
     time: Duration,
     dir: &'a Path,
-    stage_report: &'a Path,
-    recording: PathBuf,
+    /// The mirror stage's report, where it runs here.
+    stage_report: Option<&'a Path>,
+    /// The recording, where the recorder runs here.
+    recording: Option<PathBuf>,
     data: &'a Dataset,
     started: Instant,
+}
+
+/// The stages a placement starts on this host: `consumers` first, then,
+/// once they listen, `after_ready`.
+struct Here {
+    consumers: Vec<StageArgs>,
+    after_ready: Vec<StageArgs>,
 }
 
 /// Removes what an earlier run left at `path`, if anything.
@@ -178,40 +195,131 @@ impl Run {
             rig: rig.clone(),
             plan: plan_path,
             dwell_ms: config.dwell_ms,
-            wait_subscribers: subscribers_of(&consumers, TopicId::JointState),
+            wait_subscribers: 0,
             journal: arm_journal,
         };
+        let side = self.link.as_ref().map(|l| l.side);
+        let Here {
+            consumers,
+            mut after_ready,
+        } = match &self.link {
+            None => Here {
+                consumers,
+                after_ready: vec![arm],
+            },
+            Some(link) => self.split(link, mirror, consumers, arm),
+        };
+        for stage in &mut after_ready {
+            if let StageArgs::Kinematics {
+                wait_subscribers, ..
+            } = stage
+            {
+                *wait_subscribers = subscribers_of(&consumers, TopicId::JointState);
+            }
+        }
+        let mirror_here = consumers
+            .iter()
+            .any(|s| matches!(s, StageArgs::Mirror { .. }));
+        let recorded_here = consumers
+            .iter()
+            .any(|s| matches!(s, StageArgs::Recorder { .. }));
 
-        let mut supervisor = Supervisor::new(&launch);
+        let ends_run = if side == Some(Side::Robot) {
+            "kinematics_proc"
+        } else {
+            "mirror_proc"
+        };
+        let mut supervisor = Supervisor::new(&launch, ends_run);
         for stage in consumers {
             supervisor.start(stage)?;
         }
-        if !wait_ready(&supervisor, &bus, READY_WITHIN, &|| self.stopping())? {
+        let ready_within = match side {
+            Some(side) => {
+                eprintln!(
+                    "mirror {mirror}: {} side up; waiting for the {} side",
+                    side.name(),
+                    side.other().name()
+                );
+                OTHER_SIDE_WITHIN
+            }
+            None => READY_WITHIN,
+        };
+        if !wait_ready(&supervisor, &bus, ready_within, &|| self.stopping())? {
             supervisor.stop();
             if self.stopping() {
                 bail!("interrupted");
             }
+            let other = side.map_or(String::new(), |s| {
+                format!(
+                    "; is the {} side running and the link up?",
+                    s.other().name()
+                )
+            });
             bail!(
-                "mirror {mirror}: the stages did not come up within {} s ({})",
-                READY_WITHIN.as_secs(),
+                "mirror {mirror}: the stages did not come up within {} s{other} ({})",
+                ready_within.as_secs(),
                 see(&launch.log)
             );
         }
-        supervisor.start(arm)?;
+        for stage in after_ready {
+            supervisor.start(stage)?;
+        }
         let plan_seconds = plan.len() as f64 * (config.move_ms + config.dwell_ms) as f64 / 1000.0;
+        let mut time = Duration::from_secs_f64(plan_seconds * 3.0 + 60.0);
+        if side.is_some() {
+            time += OTHER_SIDE_WITHIN;
+        }
         self.conclude(Concluding {
             supervisor,
             bus: &bus,
             launch: &launch,
             mirror,
             total: plan.len(),
-            time: Duration::from_secs_f64(plan_seconds * 3.0 + 60.0),
+            time,
             dir: &dir,
-            stage_report: &report_path,
-            recording,
+            stage_report: mirror_here.then_some(report_path.as_path()),
+            recording: recorded_here.then_some(recording),
             data: &data,
             started,
         })
+    }
+
+    /// This host's part of a placement's stage table (`consumers` and the
+    /// arm, `arm`) on `link`'s side, with the bridge to the other side. On
+    /// the robot the bridge starts first (it reads what the robot's stages
+    /// publish, and subscribes only once the workstation's bridge is up, so
+    /// the arm waits for the workstation) and stops last; on the
+    /// workstation it starts once the stages there listen, as a source.
+    fn split(&self, link: &Link, mirror: usize, consumers: Vec<StageArgs>, arm: StageArgs) -> Here {
+        let split = &self.config.split;
+        let (here, there): (Vec<StageArgs>, Vec<StageArgs>) = consumers
+            .into_iter()
+            .chain([arm])
+            .partition(|s| side_of(s, split) == link.side);
+        let (here_refs, there_refs): (Vec<&StageArgs>, Vec<&StageArgs>) =
+            (here.iter().collect(), there.iter().collect());
+        let bridge = StageArgs::Bridge(BridgeArgs {
+            namespace: format!("{}/m{mirror}", link.namespace),
+            send: crossing(&here_refs, &there_refs),
+            receive: crossing(&there_refs, &here_refs),
+            listen: link.listen.clone(),
+            connect: link.connect.clone(),
+            compress_frames: split.compress_frames,
+            lease_ms: split.lease_ms,
+        });
+        let (arm, consumers): (Vec<StageArgs>, Vec<StageArgs>) = here
+            .into_iter()
+            .partition(|s| matches!(s, StageArgs::Kinematics { .. }));
+        match link.side {
+            Side::Robot => Here {
+                consumers: [bridge].into_iter().chain(consumers).collect(),
+                after_ready: arm,
+            },
+            Side::Workstation => Here {
+                consumers,
+                after_ready: [bridge].into_iter().chain(arm).collect(),
+            },
+        }
     }
 
     /// Re-runs the stages downstream of `kind` (`frames`: tracker and
@@ -241,7 +349,7 @@ impl Run {
         }
         let started = Instant::now();
         let bus = Bus::new(&launch.prefix, "pipeline")?;
-        let mut supervisor = Supervisor::new(&launch);
+        let mut supervisor = Supervisor::new(&launch, "mirror_proc");
         let replayed = kind.topics();
         let mut stages = Vec::new();
         if self.record {
@@ -306,8 +414,8 @@ impl Run {
             total: plan.len(),
             time: Duration::from_secs(600),
             dir: &dir,
-            stage_report: &report_path,
-            recording,
+            stage_report: Some(&report_path),
+            recording: self.record.then_some(recording),
             data: &data,
             started,
         })
@@ -352,19 +460,26 @@ impl Run {
                 merged.display()
             );
         }
-        let report: LiveReport = serde_json::from_str(
-            &std::fs::read_to_string(report_path)
-                .with_context(|| format!("{}: missing", report_path.display()))?,
-        )
-        .with_context(|| format!("{}: unreadable", report_path.display()))?;
-        let truth = TruthErrors::of(&report, data, &SimWorld::nico(mirror)?);
+        let report = report_path
+            .map(|path| -> Result<LiveReport> {
+                serde_json::from_str(
+                    &std::fs::read_to_string(path)
+                        .with_context(|| format!("{}: missing", path.display()))?,
+                )
+                .with_context(|| format!("{}: unreadable", path.display()))
+            })
+            .transpose()?;
+        let truth = match &report {
+            Some(report) => Some(TruthErrors::of(report, data, &SimWorld::nico(mirror)?)),
+            None => None,
+        };
         Ok(PlacementResult {
             mirror,
             report,
             truth,
             restarts: stopped.restarts,
             seconds: started.elapsed().as_secs_f64(),
-            recording: recorded.then_some(recording),
+            recording: recording.filter(|_| recorded),
             stages: messages::stats::read_all(&launch.stats_dir),
         })
     }

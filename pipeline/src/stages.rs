@@ -8,17 +8,19 @@ use std::time::Duration;
 use messages::topics::TopicId;
 use mirror_proc::calibrate::Method;
 
+use crate::split::BridgeArgs;
+
 use crate::config::Look;
 
-/// What a stage's exit means, and whether it is started again.
+/// What a stage's exit means, and whether it is started again. (Which
+/// stage's successful exit ends the run is the launcher's choice: see
+/// [`crate::supervise::Supervisor::new`].)
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RestartPolicy {
     /// Runs until the run ends: any exit is a crash, restarted.
     Service,
     /// May finish by itself (exit 0); a failure is restarted.
     Finishes,
-    /// Its successful exit ends the run; a failure is restarted.
-    EndsRun,
     /// Never restarted (a restart would overwrite its output); if it
     /// stops, the run goes on without it.
     Optional,
@@ -103,6 +105,9 @@ pub enum StageArgs {
         /// Its journal: a restart takes up the plan after the last pose reached.
         journal: PathBuf,
     },
+    /// `bridge`: this side's topics to the other host of a split run, and
+    /// the other side's here.
+    Bridge(BridgeArgs),
 }
 
 /// How much the recorder gives way to the other stages: see
@@ -122,6 +127,7 @@ impl StageArgs {
             StageArgs::Tracker => "tracker_proc",
             StageArgs::Camera { .. } => "camera_proc",
             StageArgs::Kinematics { .. } => "kinematics_proc",
+            StageArgs::Bridge(_) => "bridge",
         }
     }
 
@@ -139,7 +145,7 @@ impl StageArgs {
     }
 
     /// The topics the stage subscribes to (its binary's contract).
-    pub fn subscribes(&self) -> &'static [TopicId] {
+    pub fn subscribes(&self) -> &[TopicId] {
         match self {
             StageArgs::Recorder { .. } => &TopicId::ALL,
             StageArgs::Mirror { .. } => &[TopicId::JointState, TopicId::Detections],
@@ -148,6 +154,26 @@ impl StageArgs {
             StageArgs::ArmDriver { .. } => &[TopicId::PoseGoal],
             StageArgs::Replay { .. } => &[],
             StageArgs::Kinematics { .. } => &[TopicId::JointPositions],
+            StageArgs::Bridge(b) => &b.send,
+        }
+    }
+
+    /// The topics the stage publishes (its binary's contract).
+    pub fn publishes(&self) -> &[TopicId] {
+        match self {
+            StageArgs::Recorder { .. } => &[],
+            StageArgs::Mirror { .. } => &[
+                TopicId::Samples,
+                TopicId::Calibration,
+                TopicId::Predictions,
+                TopicId::Located,
+            ],
+            StageArgs::Tracker => &[TopicId::Detections],
+            StageArgs::Camera { .. } => &[TopicId::Frames],
+            StageArgs::ArmDriver { .. } => &[TopicId::JointPositions],
+            StageArgs::Replay { kind, .. } => kind.topics(),
+            StageArgs::Kinematics { .. } => &[TopicId::JointState, TopicId::PoseGoal],
+            StageArgs::Bridge(b) => &b.receive,
         }
     }
 
@@ -174,6 +200,7 @@ impl StageArgs {
             }
             StageArgs::Mirror { .. } | StageArgs::Tracker => vec!["run".into()],
             StageArgs::Camera { .. } => vec!["sim".into()],
+            StageArgs::Bridge(_) => vec![],
         };
         argv.extend(["--prefix".into(), prefix.into()]);
         let mut flag = |name: &str, value: String| argv.extend([format!("--{name}"), value]);
@@ -256,6 +283,7 @@ impl StageArgs {
                 flag("wait-subscribers", wait_subscribers.to_string());
                 flag("journal", path(journal));
             }
+            StageArgs::Bridge(b) => argv.extend(b.argv()),
         }
         argv
     }
@@ -264,8 +292,9 @@ impl StageArgs {
     pub fn restart_policy(&self) -> RestartPolicy {
         match self {
             StageArgs::Recorder { .. } => RestartPolicy::Optional,
-            StageArgs::Mirror { .. } => RestartPolicy::EndsRun,
-            StageArgs::Tracker => RestartPolicy::Service,
+            // It exits when the plan has ended and it has processed everything.
+            StageArgs::Mirror { .. } => RestartPolicy::Finishes,
+            StageArgs::Tracker | StageArgs::Bridge(_) => RestartPolicy::Service,
             StageArgs::Camera { .. } | StageArgs::Kinematics { .. } => RestartPolicy::Finishes,
             // It stops when the plan is finished, or is stopped with the run.
             StageArgs::ArmDriver { .. } => RestartPolicy::Finishes,
@@ -276,10 +305,12 @@ impl StageArgs {
     }
 
     /// How long it may take to stop after SIGINT before it is killed: the
-    /// recorder takes what is waiting and finishes its file.
+    /// recorder takes what is waiting and finishes its file; the bridge
+    /// sends what is waiting.
     pub fn stop_grace(&self) -> Duration {
         match self {
             StageArgs::Recorder { .. } => Duration::from_secs(60),
+            StageArgs::Bridge(_) => Duration::from_secs(10),
             _ => Duration::from_secs(3),
         }
     }

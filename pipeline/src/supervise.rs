@@ -119,15 +119,20 @@ pub struct Stopped {
 /// The running stages of one placement.
 pub struct Supervisor<'a> {
     launch: &'a Launch,
+    /// The stage whose successful exit ends the run.
+    ends_run: &'static str,
     /// In start order.
     running: Vec<Running>,
 }
 
 impl<'a> Supervisor<'a> {
-    /// No stages yet.
-    pub fn new(launch: &'a Launch) -> Self {
+    /// No stages yet; the run ends when the stage named `ends_run` (its
+    /// [`StageArgs::binary`]) exits successfully: the mirror stage where it
+    /// runs, the kinematics stage on the robot side of a split run.
+    pub fn new(launch: &'a Launch, ends_run: &'static str) -> Self {
         Self {
             launch,
+            ends_run,
             running: Vec::new(),
         }
     }
@@ -173,7 +178,7 @@ impl<'a> Supervisor<'a> {
             let policy = r.stage.restart_policy();
             let name = r.stage.binary();
             match policy {
-                RestartPolicy::EndsRun if status.success() => progress = Progress::Done,
+                _ if status.success() && name == self.ends_run => progress = Progress::Done,
                 RestartPolicy::Finishes if status.success() => {}
                 RestartPolicy::Optional => {
                     eprintln!(

@@ -36,11 +36,11 @@ impl Kind {
     }
 
     /// The topics it publishes.
-    pub fn topics(self) -> Vec<TopicId> {
+    pub fn topics(self) -> &'static [TopicId] {
         match self {
-            Kind::Frames => vec![TopicId::Frames, TopicId::JointState],
-            Kind::Detections => vec![TopicId::Detections, TopicId::JointState],
-            Kind::All => TopicId::ALL.to_vec(),
+            Kind::Frames => &[TopicId::Frames, TopicId::JointState],
+            Kind::Detections => &[TopicId::Detections, TopicId::JointState],
+            Kind::All => &TopicId::ALL,
         }
     }
 }

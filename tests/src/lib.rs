@@ -1,6 +1,8 @@
 //! Helpers for the cross-crate tests: building and finding the stage
 //! binaries, and a guard that kills spawned processes.
 
+pub mod hosts;
+
 use std::path::PathBuf;
 use std::process::{Child, Command};
 use std::sync::OnceLock;

@@ -16,6 +16,7 @@ use std::time::{Duration, Instant};
 
 use messages::topics::{self, TopicId};
 use messages::{Bus, Encoding, FrameHeader, JointState};
+use tests::hosts::{TwoHosts, skip_root_tests};
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 use zenoh::Wait;
 
@@ -95,15 +96,6 @@ fn joint_state(seq: u64) -> JointState {
         dof: 4,
         ..JointState::default()
     }
-}
-
-/// Whether the root-only tests are to be skipped; says so if they are.
-fn skip_root_tests() -> bool {
-    let skip = std::env::var_os("MIRROR_SKIP_ROOT_TESTS").is_some_and(|v| v == "1");
-    if skip {
-        eprintln!("MIRROR_SKIP_ROOT_TESTS=1: skipping a test that needs root");
-    }
-    skip
 }
 
 /// `a` and `b` equal but for their stamps, and `b`'s stamp `a`'s moved by
@@ -347,86 +339,16 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
     );
 }
 
-/// Two network namespaces joined by a veth pair: two hosts' networks on
-/// this machine. Removed (with the pair) when dropped.
-struct TwoHosts {
-    names: [String; 2],
-    veth: [String; 2],
-    addresses: [String; 2],
-}
-
-impl TwoHosts {
-    fn new() -> Self {
-        let pid = std::process::id();
-        let names = [format!("mra{pid}"), format!("mrb{pid}")];
-        let veth = [format!("mva{pid}"), format!("mvb{pid}")];
-        let net = format!("10.213.{}", pid % 250);
-        let addresses = [format!("{net}.1"), format!("{net}.2")];
-        let hosts = Self {
-            names,
-            veth,
-            addresses,
-        };
-        for ns in &hosts.names {
-            ip(&["netns", "add", ns]);
-            ip(&["-n", ns, "link", "set", "lo", "up"]);
-        }
-        ip(&[
-            "link",
-            "add",
-            &hosts.veth[0],
-            "type",
-            "veth",
-            "peer",
-            "name",
-            &hosts.veth[1],
-        ]);
-        for k in 0..2 {
-            let (ns, dev) = (&hosts.names[k], &hosts.veth[k]);
-            ip(&["link", "set", dev, "netns", ns]);
-            let address = format!("{}/24", hosts.addresses[k]);
-            ip(&["-n", ns, "addr", "add", &address, "dev", dev]);
-            ip(&["-n", ns, "link", "set", dev, "up"]);
-        }
+/// A bridge on host `k`.
+fn bridge_on(hosts: &TwoHosts, k: usize, args: &[&str]) -> KillOnDrop {
+    KillOnDrop(
         hosts
-    }
-
-    /// Cuts (`false`) or restores host 0's side of the link.
-    fn link(&self, up: bool) {
-        let state = if up { "up" } else { "down" };
-        ip(&["-n", &self.names[0], "link", "set", &self.veth[0], state]);
-    }
-
-    /// A bridge on host `k`.
-    fn bridge(&self, k: usize, args: &[&str]) -> KillOnDrop {
-        KillOnDrop(
-            Command::new("ip")
-                .args(["netns", "exec", &self.names[k]])
-                .arg(stage_binaries().join("bridge"))
-                .args(args)
-                .stderr(Stdio::piped())
-                .spawn()
-                .expect("ip netns exec starts"),
-        )
-    }
-}
-
-impl Drop for TwoHosts {
-    fn drop(&mut self) {
-        for ns in &self.names {
-            let _ = Command::new("ip").args(["netns", "del", ns]).status();
-        }
-    }
-}
-
-fn ip(args: &[&str]) {
-    let out = Command::new("ip").args(args).output().expect("ip runs");
-    assert!(
-        out.status.success(),
-        "ip {}: {} (the tests of two hosts need root; MIRROR_SKIP_ROOT_TESTS=1 skips them)",
-        args.join(" "),
-        String::from_utf8_lossy(&out.stderr).trim()
-    );
+            .command(k, stage_binaries().join("bridge"))
+            .args(args)
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("ip netns exec starts"),
+    )
 }
 
 /// The value of counter `name` in a stage's log.
@@ -453,7 +375,8 @@ fn a_cut_link_comes_back_by_itself_and_both_sides_count_the_loss() {
     let listen = format!("tcp/{}:7447", hosts.addresses[0]);
     // A short lease, so that a cut of 3 s is a cut and not a stall.
     let common = ["--namespace", &namespace, "--lease-ms", "1000"];
-    let sending = hosts.bridge(
+    let sending = bridge_on(
+        &hosts,
         0,
         &[
             &common[..],
@@ -468,7 +391,8 @@ fn a_cut_link_comes_back_by_itself_and_both_sides_count_the_loss() {
         ]
         .concat(),
     );
-    let receiving = hosts.bridge(
+    let receiving = bridge_on(
+        &hosts,
         1,
         &[
             &common[..],
@@ -672,4 +596,76 @@ fn a_second_robot_on_the_same_network_does_not_disturb_the_first() {
         got2.len()
     );
     drop(bus_r2);
+}
+
+/// The sending side checks the receivers' layouts before it takes anything
+/// from shared memory: a receiver that takes joint states in another layout
+/// (a build of another version on the other host) stops the sending bridge
+/// with both layout names, before it has sent anything.
+#[test]
+fn a_receiver_of_another_layout_is_named_by_the_sender_before_it_sends() {
+    let robot = unique_prefix("layout_robot");
+    let namespace = format!("mirror/{robot}");
+    let listen = format!("tcp/127.0.0.1:{}", free_port());
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", "\"peer\"").unwrap();
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    config
+        .insert_json5("listen/endpoints", &format!("[\"{listen}\"]"))
+        .unwrap();
+    let other = zenoh::open(config).wait().unwrap();
+    let _receiver = other
+        .declare_subscriber(format!("{namespace}/joint_state"))
+        .callback(|_| {})
+        .wait()
+        .unwrap();
+    let layout_key = format!("{namespace}/_layout/joint_state/0c");
+    let answer_key = layout_key.clone();
+    let _layout = other
+        .declare_queryable(layout_key)
+        .callback(move |query| {
+            let _ = query
+                .reply(answer_key.as_str(), "mirror.JointState.v9")
+                .wait();
+        })
+        .wait()
+        .unwrap();
+    let mut sending = bridge(&[
+        "--prefix",
+        &robot,
+        "--namespace",
+        &namespace,
+        "--send",
+        "joint_state",
+        "--connect",
+        &listen,
+    ]);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        if let Some(status) = sending.0.try_wait().unwrap() {
+            break status;
+        }
+        assert!(Instant::now() < deadline, "the sending bridge did not stop");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut log = String::new();
+    use std::io::Read;
+    sending
+        .0
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut log)
+        .unwrap();
+    assert!(!status.success(), "{log}");
+    assert!(
+        log.contains(
+            "layout mismatch on joint_state: this side's is mirror.JointState.v1, \
+             the receiver 0c's is mirror.JointState.v9"
+        ),
+        "{log}"
+    );
+    assert!(log.contains("sent_joint_state=0"), "{log}");
 }

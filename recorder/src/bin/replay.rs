@@ -102,7 +102,7 @@ fn topics_of(args: &Args) -> Result<Vec<TopicId>> {
             })
             .collect();
     }
-    Ok(args.kind.topics())
+    Ok(args.kind.topics().to_vec())
 }
 
 fn run(args: Args) -> Result<()> {

@@ -215,8 +215,10 @@ fn stages_killed_mid_run_are_restarted_and_the_calibration_completes() {
     assert_calibrated(&placement);
     let live = &placement["report"];
     let c = &live["counters"];
+    // Each of the four kills may cost the pose being sampled when it came
+    // (the stage's restart outlasts a 250 ms dwell on a busy machine), no more.
     assert!(
-        live["train_samples"].as_u64().unwrap() >= 10,
+        live["train_samples"].as_u64().unwrap() >= 12 - 4,
         "calibration poses: {live}"
     );
     assert_eq!(
