@@ -16,8 +16,11 @@ if [ ! -d target/node/node_modules/@foxglove/ws-protocol ]; then
         "@foxglove/ws-protocol@0.8" "ws@8"
 fi
 
-cargo fmt --all -- --check
-cargo clippy --workspace --all-targets -- -D warnings
-RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --quiet
-cargo test --workspace --all-targets
-cargo test --workspace --doc
+# Each step's start is logged with the time so far, to see where CI time goes.
+step() { echo "test.sh: ${SECONDS}s: $*" >&2; "$@"; }
+step cargo fmt --all -- --check
+step cargo clippy --workspace --all-targets -- -D warnings
+RUSTDOCFLAGS="-D warnings" step cargo doc --workspace --no-deps --quiet
+step cargo test --workspace --all-targets
+step cargo test --workspace --doc
+echo "test.sh: ${SECONDS}s: done" >&2

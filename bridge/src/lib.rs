@@ -526,9 +526,13 @@ fn send(
             .map_err(|e| anyhow::anyhow!("publishing {}: {e}", options.key(topic)))?;
         publishers.push((topic, publisher));
     }
-    // Nothing is taken from shared memory before someone receives it.
+    // Nothing is taken from shared memory before someone receives it. Frames
+    // are droppable: a side that wants none (a workstation that does not
+    // record) does not hold the other topics back; they go unheard, counted.
+    let small_sent = publishers.iter().any(|(t, _)| !t.carries_frames());
+    let awaited = |t: &TopicId| !(small_sent && t.carries_frames());
     let mut waiting_since = Instant::now();
-    while let Some((topic, _)) = publishers.iter().find(|(_, p)| !heard(p)) {
+    while let Some((topic, _)) = publishers.iter().find(|(t, p)| awaited(t) && !heard(p)) {
         if any_set(stops) || !bus.sleep(Duration::from_millis(10)) {
             return Ok(());
         }

@@ -189,6 +189,8 @@ pub struct Live {
     joints: VecDeque<JointState>,
     detections: VecDeque<StereoDetections>,
     joints_ended: bool,
+    /// No detection will come any more (see [`Live::end_of_detections`]).
+    detections_ended: bool,
     last_joint_stamp: i64,
     last_detection_stamp: i64,
     window: Option<Window>,
@@ -222,6 +224,7 @@ impl Live {
             joints: VecDeque::new(),
             detections: VecDeque::new(),
             joints_ended: false,
+            detections_ended: false,
             last_joint_stamp: i64::MIN,
             last_detection_stamp: i64::MIN,
             window: None,
@@ -363,6 +366,21 @@ impl Live {
         self.finished
     }
 
+    /// Whether the joint state that ends the pose plan has come (it is
+    /// processed once the detections have passed its stamp).
+    pub fn plan_ended(&self) -> bool {
+        self.joints_ended
+    }
+
+    /// The detections have ended: their source stopped after the plan's
+    /// end (the robot's side of a split run stops its camera when the plan
+    /// is done), so no detection will pass the joint states still queued.
+    /// They are processed now, the plan's end among them.
+    pub fn end_of_detections(&mut self) -> Vec<Output> {
+        self.detections_ended = true;
+        self.drain()
+    }
+
     /// Takes a joint state; returns what became ready.
     pub fn push_joint_state(&mut self, js: JointState) -> Vec<Output> {
         if let Some(why) = self.joint_state_fault(&js) {
@@ -418,7 +436,11 @@ impl Live {
                 (Some(j), Some(d)) if j.stamp_ns <= d.stamp_ns => Next::Joint,
                 (Some(_), Some(_)) => Next::Detection,
                 // A joint state is safe once detections have passed it.
-                (Some(j), None) if self.last_detection_stamp >= j.stamp_ns => Next::Joint,
+                (Some(j), None)
+                    if self.last_detection_stamp >= j.stamp_ns || self.detections_ended =>
+                {
+                    Next::Joint
+                }
                 // A detection is safe once joint states have passed it, or they ended.
                 (None, Some(d)) if self.joints_ended || self.last_joint_stamp > d.stamp_ns => {
                     Next::Detection

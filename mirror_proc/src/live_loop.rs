@@ -4,6 +4,7 @@
 use std::collections::VecDeque;
 use std::ops::ControlFlow;
 use std::path::Path;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use geometry::Rig;
@@ -13,6 +14,14 @@ use messages::topics::{self, Topic};
 use messages::{Bus, Publisher, now_ns};
 
 use crate::live::{Latency, Live, LiveConfig, LiveReport, Output};
+
+/// How long after the plan's end the stage waits for a detection to pass
+/// it before it takes the detections to have ended (their camera stopped
+/// with the plan: the robot's side of a split run).
+const DETECTIONS_QUIET: Duration = Duration::from_secs(1);
+
+/// How often the stage looks whether the detections have gone quiet.
+const QUIET_CHECK_EVERY: Duration = Duration::from_millis(100);
 
 /// The topics the stage journals: what a restart must not lose.
 pub const JOURNALED: [topics::TopicId; 2] = [topics::Samples::ID, topics::Calibration::ID];
@@ -152,9 +161,10 @@ pub fn run(
         outputs.publish(o, &mut stats)?;
     }
     tracing::info!(prefix, "mirror stage running");
+    let mut last_detection = Instant::now();
     bus.wake()?.run(
         &[joints.listener(), detections.listener()],
-        None,
+        Some(QUIET_CHECK_EVERY),
         || -> Result<_> {
             let cpu = messages::stats::StepStart::now();
             let mut ready = Vec::new();
@@ -177,6 +187,15 @@ pub fn run(
                 }
                 let _span = tracing::trace_span!("mirror_step", seq = d.seq).entered();
                 ready.extend(live.push_detections(d));
+                last_detection = Instant::now();
+            }
+            if live.plan_ended() && !live.finished() && last_detection.elapsed() > DETECTIONS_QUIET
+            {
+                tracing::info!(
+                    "no detection for {:.1} s after the plan's end: finishing",
+                    DETECTIONS_QUIET.as_secs_f64()
+                );
+                ready.extend(live.end_of_detections());
             }
             for o in ready {
                 outputs.publish(o, &mut stats)?;

@@ -541,3 +541,33 @@ fn a_stage_resumed_from_its_journal_ends_with_the_uninterrupted_calibration() {
         assert_eq!(resumed.report().counters.poses_repeated, 0);
     }
 }
+
+/// Detections that stop with the plan (the camera stopped when the pose
+/// plan ended, as on the robot's side of a split run) leave the plan's
+/// end unprocessed; once they are declared ended, it is, and the outputs
+/// are those of the full streams.
+#[test]
+fn detections_that_stop_with_the_plan_end_it_once_declared_ended() {
+    let (joints, detections, _) = streams();
+    let done = joints
+        .iter()
+        .find(|j| j.phase == Phase::Done as u32)
+        .unwrap()
+        .stamp_ns;
+    let before: Vec<_> = detections
+        .iter()
+        .copied()
+        .filter(|d| d.stamp_ns < done)
+        .collect();
+    let (full, full_live) = run(&by_stamp(&joints, &detections), &joints, &detections);
+    assert!(full_live.finished());
+    let (mut cut, mut live) = run(&by_stamp(&joints, &before), &joints, &before);
+    assert!(live.plan_ended() && !live.finished());
+    cut.extend(live.end_of_detections());
+    assert!(live.finished());
+    assert_eq!(
+        samples_and_calibrations(&cut),
+        samples_and_calibrations(&full)
+    );
+    assert_eq!(live.report().calibration, full_live.report().calibration);
+}

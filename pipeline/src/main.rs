@@ -141,8 +141,11 @@ fn run(args: Args) -> Result<()> {
     if args.no_record && args.live_view.is_some() {
         bail!("--live-view is served by the recorder: it cannot be used with --no-record");
     }
-    if args.side == Some(Side::Robot) && args.live_view.is_some() {
-        bail!("--live-view is served by the recorder, which runs on the workstation side");
+    if args.side == Some(Side::Robot) && (args.live_view.is_some() || args.no_record) {
+        bail!(
+            "--live-view and --no-record are the recorder's, which runs on the workstation side: \
+             give them there"
+        );
     }
     if args.side.is_some() && args.replay.is_some() {
         bail!("--side cannot be used with --replay: a replay runs on one host");

@@ -389,10 +389,11 @@ impl Run {
             kind,
             wait_subscribers,
         })?;
-        // Replay creates its topics' services lossless (publishers wait for
-        // the slowest subscriber); nothing may create them before it does.
+        // Replay creates every service lossless (publishers wait for the
+        // slowest subscriber), its topics' and the rest; nothing may create
+        // one before it does (then its settings differ and replay fails).
         let waited = Instant::now();
-        while !replayed
+        while !TopicId::ALL
             .iter()
             .all(|t| bus.service_exists(*t).unwrap_or(false))
         {

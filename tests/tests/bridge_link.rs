@@ -98,6 +98,20 @@ fn joint_state(seq: u64) -> JointState {
     }
 }
 
+/// A zenoh peer of the test's own that `how` (`listen` or `connect`)s at
+/// `endpoint`, without scouting.
+fn zenoh_peer(how: &str, endpoint: &str) -> zenoh::Session {
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", "\"peer\"").unwrap();
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    config
+        .insert_json5(&format!("{how}/endpoints"), &format!("[\"{endpoint}\"]"))
+        .unwrap();
+    zenoh::open(config).wait().unwrap()
+}
+
 /// `a` and `b` equal but for their stamps, and `b`'s stamp `a`'s moved by
 /// `ahead_ns` within 5 ms.
 fn same_but_moved(a: &JointState, b: &JointState, ahead_ns: i64) -> bool {
@@ -245,15 +259,7 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
     }
 
     // A rogue peer puts a sample (another layout) on the joint-state key.
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"peer\"").unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    config
-        .insert_json5("connect/endpoints", &format!("[\"{ws_listen}\"]"))
-        .unwrap();
-    let rogue = zenoh::open(config).wait().unwrap();
+    let rogue = zenoh_peer("connect", &ws_listen);
     let foreign = bridge::envelope::seal(
         TopicId::Samples,
         bridge::envelope::From {
@@ -607,15 +613,7 @@ fn a_receiver_of_another_layout_is_named_by_the_sender_before_it_sends() {
     let robot = unique_prefix("layout_robot");
     let namespace = format!("mirror/{robot}");
     let listen = format!("tcp/127.0.0.1:{}", free_port());
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"peer\"").unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    config
-        .insert_json5("listen/endpoints", &format!("[\"{listen}\"]"))
-        .unwrap();
-    let other = zenoh::open(config).wait().unwrap();
+    let other = zenoh_peer("listen", &listen);
     let _receiver = other
         .declare_subscriber(format!("{namespace}/joint_state"))
         .callback(|_| {})
