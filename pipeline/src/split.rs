@@ -11,11 +11,12 @@ use serde::{Deserialize, Serialize};
 use crate::stages::StageArgs;
 
 /// One side of a split run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Side {
     /// The host with the camera and the arm: camera, arm driver,
     /// kinematics (and the tracker, unless offloaded).
+    #[default]
     Robot,
     /// The host that calibrates and records: mirror stage and recorder
     /// (and the tracker, if offloaded).
@@ -53,35 +54,19 @@ pub enum FrameCompression {
 
 /// The config's `[split]` table: what both sides of a split run must agree
 /// on. The link's endpoints differ per side and come from the command line.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SplitConfig {
     /// Where the tracker runs: on the robot (default; only detections
     /// cross, and frames only for the workstation's recorder), or on the
     /// workstation (offload: every frame crosses).
-    #[serde(default = "robot")]
     pub tracker: Side,
     /// How frames cross.
-    #[serde(default)]
     pub compress_frames: FrameCompression,
     /// How long the link may stay silent before it counts as cut, ms
     /// (absent: the bridge's default).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub lease_ms: Option<u64>,
-}
-
-fn robot() -> Side {
-    Side::Robot
-}
-
-impl Default for SplitConfig {
-    fn default() -> Self {
-        Self {
-            tracker: Side::Robot,
-            compress_frames: FrameCompression::None,
-            lease_ms: None,
-        }
-    }
 }
 
 /// This host's side of a split run and where its link goes (the command

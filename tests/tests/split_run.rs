@@ -78,27 +78,21 @@ fn plane(report: &Value) -> (Vector3<f64>, f64) {
     )
 }
 
-/// A counter of a stage's stats in a placement of a launcher's report.
-fn counter(placement: &Value, stage: &str, name: &str) -> u64 {
-    let stage = placement["stages"]
-        .as_array()
-        .unwrap()
+/// A stage's stats in a placement of a launcher's report.
+fn stage_stats<'a>(placement: &'a Value, stage: &str) -> Option<&'a Value> {
+    placement["stages"]
+        .as_array()?
         .iter()
         .find(|s| s["stage"] == stage)
-        .unwrap_or_else(|| panic!("no {stage} stats in {placement}"));
-    stage["counters"][name]
-        .as_u64()
-        .unwrap_or_else(|| panic!("no {name} in {stage}"))
 }
 
-/// The bridge's counters in a placement of a launcher's report.
-fn bridge_counters(placement: &Value) -> Value {
-    placement["stages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|s| s["stage"] == "bridge")
-        .map_or(Value::Null, |s| s["counters"].clone())
+/// A counter of a stage's stats in a placement of a launcher's report.
+fn counter(placement: &Value, stage: &str, name: &str) -> u64 {
+    let stats =
+        stage_stats(placement, stage).unwrap_or_else(|| panic!("no {stage} stats in {placement}"));
+    stats["counters"][name]
+        .as_u64()
+        .unwrap_or_else(|| panic!("no {name} in {stats}"))
 }
 
 /// Names of `dir`'s entries that contain one of `prefixes`.
@@ -228,7 +222,7 @@ fn assert_nothing_lost(split: &Value, topics: &[&str]) {
             counter(split, "bridge", &format!("lost_{topic}")),
             0,
             "lost {topic}: {}",
-            bridge_counters(split)
+            stage_stats(split, "bridge").map_or(&Value::Null, |s| &s["counters"])
         );
         assert!(counter(split, "bridge", &format!("received_{topic}")) > 0);
     }
@@ -396,12 +390,10 @@ fn with_the_tracker_offloaded_the_workstation_detects_and_calibrates() {
         split,
         &["frames", "joint_state", "joint_positions", "pose_goal"],
     );
-    let tracker = split["stages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .any(|s| s["stage"] == "tracker_proc");
-    assert!(tracker, "no tracker on the workstation: {split}");
+    assert!(
+        stage_stats(split, "tracker_proc").is_some(),
+        "no tracker on the workstation: {split}"
+    );
     let robot = &run.placement("robot");
     assert!(counter(robot, "bridge", "received_detections") > 0);
     eprintln!(
