@@ -14,6 +14,8 @@
 //! a foreign marker as ours. [`Correction::SparingForeign`] (the default)
 //! corrects a code only where no foreign code lies within the radius.
 
+use std::collections::HashSet;
+
 use anyhow::Result;
 use opencv::aruco;
 use opencv::core::{self, Mat, Point2f, Size, Vector};
@@ -27,6 +29,12 @@ const CELL_PX: i32 = 6;
 /// Pixels of each cell's edge left out when averaging (perspective and blur
 /// smear the neighbours' ink into it).
 const CELL_MARGIN_PX: i32 = 1;
+/// Pixels per cell in OpenCV's reading ([`CodeBook::read_as_opencv`]): its
+/// `perspectiveRemovePixelPerCell` default.
+const OPENCV_CELL_PX: i32 = 4;
+/// White border cells OpenCV's reading allows: its
+/// `maxErroneousBitsInBorderRate` default, 35% of 20.
+const OPENCV_BORDER_ERRORS: u32 = 7;
 
 /// A 4x4 code, row-major, `true` for a white cell.
 type Bits = [bool; 16];
@@ -200,6 +208,58 @@ fn codes(name: aruco::PREDEFINED_DICTIONARY_NAME) -> Result<Vec<Bits>> {
         .collect()
 }
 
+/// Codes of the larger marker families (5x5, 6x6, 7x7 ArUco and AprilTag
+/// 25h9, 36h11), each in its four rotations and mirrored, as bit patterns
+/// of the inner cells (row-major, bit k for cell k), per inner side.
+fn larger_families() -> Result<Vec<(usize, HashSet<u64>)>> {
+    use aruco::PREDEFINED_DICTIONARY_NAME::*;
+    let mut out = Vec::new();
+    for (side, names) in [
+        (5, vec![DICT_5X5_1000, DICT_APRILTAG_25h9]),
+        (6, vec![DICT_6X6_1000, DICT_APRILTAG_36h11]),
+        (7, vec![DICT_7X7_1000]),
+    ] {
+        let mut set = HashSet::new();
+        for name in names {
+            let dictionary = aruco::get_predefined_dictionary(name)?;
+            let bytes = dictionary.bytes_list();
+            for id in 0..bytes.rows() {
+                let m = aruco::Dictionary::get_bits_from_byte_list(&bytes.row(id)?, side as i32)?;
+                let mut grid = vec![false; side * side];
+                for (k, b) in grid.iter_mut().enumerate() {
+                    *b = *m.at_2d::<u8>((k / side) as i32, (k % side) as i32)? != 0;
+                }
+                for mirrored in [false, true] {
+                    let mut g: Vec<bool> = if mirrored {
+                        (0..side * side)
+                            .map(|k| grid[(k / side) * side + side - 1 - k % side])
+                            .collect()
+                    } else {
+                        grid.clone()
+                    };
+                    for _ in 0..4 {
+                        set.insert(pack(&g));
+                        // Turned 90 degrees clockwise.
+                        g = (0..side * side)
+                            .map(|k| g[(side - 1 - k % side) * side + k / side])
+                            .collect();
+                    }
+                }
+            }
+        }
+        out.push((side, set));
+    }
+    Ok(out)
+}
+
+/// Cells as bits, cell k at bit k.
+fn pack(cells: &[bool]) -> u64 {
+    cells
+        .iter()
+        .enumerate()
+        .fold(0, |acc, (k, &w)| acc | (u64::from(w) << k))
+}
+
 /// 4x4 codes printed by other dictionaries (`DICT_4X4_1000` beyond id 49,
 /// which `_100` and `_250` share, and AprilTag 16h5), and their mirror images.
 fn foreign_codes() -> Result<Vec<Bits>> {
@@ -224,6 +284,9 @@ pub struct CodeBook {
     /// Foreign codes (see [`Correction::SparingForeign`]): a read nearer to
     /// one of these than to any of ours is refused.
     decoys: Vec<Bits>,
+    /// Larger families' codes by inner side (see [`larger_families`]): a
+    /// candidate that OpenCV's reading takes for one of them is refused.
+    larger: Vec<(usize, HashSet<u64>)>,
 }
 
 impl CodeBook {
@@ -312,6 +375,7 @@ impl CodeBook {
             entries,
             ambiguous,
             decoys,
+            larger: larger_families()?,
         })
     }
 
@@ -434,9 +498,12 @@ impl CodeBook {
         if margin < checks.min_margin {
             return Ok(Err(Refusal::Margin(margin)));
         }
-        Ok(self
-            .identify(&levels, checks.min_gap)
-            .map(|(id, mirrored, rotation, errors, gap)| Decoded {
+        let identified = self.identify(&levels, checks.min_gap);
+        if identified.is_ok() && self.larger_family(image, quad)? {
+            return Ok(Err(Refusal::Foreign));
+        }
+        Ok(
+            identified.map(|(id, mirrored, rotation, errors, gap)| Decoded {
                 id,
                 mirrored,
                 rotation,
@@ -444,8 +511,202 @@ impl CodeBook {
                 margin,
                 gap,
                 contrast,
-            }))
+            }),
+        )
     }
+
+    /// Whether OpenCV's reading takes the candidate for a marker of a larger
+    /// family (a 6x6 marker, a ChArUco board's): read as 4x4 cells, such a
+    /// marker can land on one of our codes.
+    fn larger_family(&self, image: &impl core::ToInputArray, quad: &[Point2f; 4]) -> Result<bool> {
+        for (side, codes) in &self.larger {
+            let cells = side + 2;
+            if let Some((white, _)) = opencv_cells(image, quad, cells)?
+                && 100 * border_whites(&white, cells) <= 35 * (4 * cells as u32 - 4)
+            {
+                let inner: Vec<bool> = (0..side * side)
+                    .map(|k| white[(k / side + 1) * cells + k % side + 1])
+                    .collect();
+                if codes.contains(&pack(&inner)) {
+                    return Ok(true);
+                }
+            }
+        }
+        Ok(false)
+    }
+
+    /// The code (ours or foreign, any rotation) that the cells' averages
+    /// lean to most, however little.
+    fn favoured(&self, cells: &Cells) -> Bits {
+        let border = |k: usize| {
+            let (r, c) = (k / CELLS, k % CELLS);
+            r == 0 || c == 0 || r == CELLS - 1 || c == CELLS - 1
+        };
+        let mut edge: Vec<f64> = (0..CELLS * CELLS)
+            .filter(|&k| border(k))
+            .map(|k| cells[k])
+            .collect();
+        edge.sort_by(f64::total_cmp);
+        let code: [f64; 16] = std::array::from_fn(|i| cells[(i / 4 + 1) * CELLS + i % 4 + 1]);
+        let white = code.iter().copied().fold(f64::MIN, f64::max);
+        let threshold = 0.5 * (edge[edge.len() / 2] + white);
+        let score = |bits: &Bits| -> f64 {
+            code.iter()
+                .zip(bits)
+                .map(|(l, &w)| if w { l - threshold } else { threshold - l })
+                .sum()
+        };
+        self.entries
+            .iter()
+            .flat_map(|e| e.rotations.iter())
+            .chain(self.decoys.iter())
+            .copied()
+            .max_by(|a, b| score(a).total_cmp(&score(b)))
+            .unwrap_or([false; 16])
+    }
+
+    /// Reads a candidate the way OpenCV's stock pass does: warped to
+    /// [`OPENCV_CELL_PX`] pixels a cell by nearest pixel, one Otsu threshold,
+    /// a cell white when most of its pixels are, up to
+    /// [`OPENCV_BORDER_ERRORS`] white border cells, an exact code. A second
+    /// look for our near misses only: on a blurred marker of 8 px or a
+    /// steeply seen one, blur spreads the white cells into the thin border
+    /// and leaves cell averages at the threshold, where OpenCV's reading of
+    /// whole pixels still lands on the code.
+    pub fn read_as_opencv(
+        &self,
+        image: &impl core::ToInputArray,
+        quad: &[Point2f; 4],
+        checks: &Checks,
+    ) -> Result<Reading> {
+        let shortest = f64::from(shortest_side(quad));
+        if shortest < checks.min_side {
+            return Ok(Err(Refusal::Small(shortest)));
+        }
+        let Some((white, contrast)) = opencv_cells(image, quad, CELLS)? else {
+            return Ok(Err(Refusal::Contrast(0.0)));
+        };
+        if contrast < checks.min_contrast {
+            return Ok(Err(Refusal::Contrast(contrast)));
+        }
+        let border_white = border_whites(&white, CELLS);
+        if border_white > OPENCV_BORDER_ERRORS {
+            return Ok(Err(Refusal::Border(border_white)));
+        }
+        let bits: Bits = std::array::from_fn(|i| white[(i / 4 + 1) * CELLS + i % 4 + 1]);
+        if self.decoys.contains(&bits) {
+            return Ok(Err(Refusal::Foreign));
+        }
+        let found = self.entries.iter().find_map(|e| {
+            e.rotations
+                .iter()
+                .position(|r| *r == bits)
+                .map(|rotation| (e, rotation))
+        });
+        let Some((e, rotation)) = found else {
+            let nearest = self
+                .entries
+                .iter()
+                .flat_map(|e| e.rotations.iter().map(|r| hamming(r, &bits)))
+                .min()
+                .unwrap_or(16);
+            return Ok(Err(Refusal::NoCode(nearest)));
+        };
+        // Whole pixels by nearest neighbour can land on a code by chance (a
+        // 6x6 marker's cells, a speck): the cells' averages must lean to the
+        // same code, of every code and rotation, ours and foreign.
+        if self.favoured(&rectify(image, quad)?) != bits {
+            return Ok(Err(Refusal::Ambiguous(0.0)));
+        }
+        if self.larger_family(image, quad)? {
+            return Ok(Err(Refusal::Foreign));
+        }
+        Ok(Ok(Decoded {
+            id: e.id,
+            mirrored: e.mirrored,
+            rotation,
+            errors: 0,
+            // Read by whole pixels: no cell levels to give a margin or a lead.
+            margin: 0.0,
+            gap: 0.0,
+            contrast,
+        }))
+    }
+}
+
+/// OpenCV's reading of a candidate as `cells` x `cells` cells (border
+/// included): warped to [`OPENCV_CELL_PX`] pixels a cell by nearest pixel,
+/// one Otsu threshold, a cell white when most of its pixels are. The cells
+/// row-major and the contrast between the threshold's two classes; `None`
+/// when the threshold left one class empty.
+fn opencv_cells(
+    image: &impl core::ToInputArray,
+    quad: &[Point2f; 4],
+    cells: usize,
+) -> Result<Option<(Vec<bool>, f64)>> {
+    let n = cells as i32 * OPENCV_CELL_PX;
+    let last = (n - 1) as f32;
+    let dst = Vector::<Point2f>::from_iter([
+        Point2f::new(0.0, 0.0),
+        Point2f::new(last, 0.0),
+        Point2f::new(last, last),
+        Point2f::new(0.0, last),
+    ]);
+    let src = Vector::<Point2f>::from_iter(quad.iter().copied());
+    let transform = imgproc::get_perspective_transform(&src, &dst, core::DECOMP_LU)?;
+    let mut warped = Mat::default();
+    imgproc::warp_perspective(
+        image,
+        &mut warped,
+        &transform,
+        Size::new(n, n),
+        imgproc::INTER_NEAREST,
+        core::BORDER_CONSTANT,
+        core::Scalar::default(),
+    )?;
+    let mut binary = Mat::default();
+    let threshold = imgproc::threshold(
+        &warped,
+        &mut binary,
+        125.0,
+        255.0,
+        imgproc::THRESH_BINARY | imgproc::THRESH_OTSU,
+    )?;
+    let (mut sums, mut counts) = ([0.0f64; 2], [0u32; 2]);
+    for y in 0..n {
+        for &v in warped.at_row::<u8>(y)? {
+            let k = usize::from(f64::from(v) > threshold);
+            sums[k] += f64::from(v);
+            counts[k] += 1;
+        }
+    }
+    if counts.contains(&0) {
+        return Ok(None);
+    }
+    let contrast = sums[1] / f64::from(counts[1]) - sums[0] / f64::from(counts[0]);
+    let mut white = vec![false; cells * cells];
+    for (k, w) in white.iter_mut().enumerate() {
+        let (r, c) = ((k / cells) as i32, (k % cells) as i32);
+        let mut on = 0;
+        for y in r * OPENCV_CELL_PX..(r + 1) * OPENCV_CELL_PX {
+            let row = binary.at_row::<u8>(y)?;
+            on += (c * OPENCV_CELL_PX..(c + 1) * OPENCV_CELL_PX)
+                .filter(|&x| row[x as usize] != 0)
+                .count();
+        }
+        *w = 2 * on > (OPENCV_CELL_PX * OPENCV_CELL_PX) as usize;
+    }
+    Ok(Some((white, contrast)))
+}
+
+/// White cells on the border of a `cells` x `cells` grid.
+fn border_whites(white: &[bool], cells: usize) -> u32 {
+    (0..cells * cells)
+        .filter(|&k| {
+            let (r, c) = (k / cells, k % cells);
+            white[k] && (r == 0 || c == 0 || r == cells - 1 || c == cells - 1)
+        })
+        .count() as u32
 }
 
 /// Mean brightness of each of a candidate's 6x6 cells (border included),
@@ -515,6 +776,95 @@ mod tests {
         let zero = both.radii().iter().filter(|r| r.2 == 0).count();
         assert!(zero > 0 && zero < 96, "{zero} codes with no correction");
         assert!(both.radii().iter().all(|&(_, _, r)| r <= 1));
+    }
+
+    /// A marker of OpenCV's drawing, `side` pixels, on white, mirrored when
+    /// asked, and its outline as OpenCV's candidates give it (the outer
+    /// pixels' centres, clockwise).
+    fn drawn(
+        name: aruco::PREDEFINED_DICTIONARY_NAME,
+        id: i32,
+        side: i32,
+        mirrored: bool,
+    ) -> (Mat, [Point2f; 4]) {
+        let dictionary = aruco::get_predefined_dictionary(name).unwrap();
+        let mut marker = Mat::default();
+        aruco::draw_marker(&dictionary, id, side, &mut marker, 1).unwrap();
+        if mirrored {
+            let mut flipped = Mat::default();
+            core::flip(&marker, &mut flipped, 1).unwrap();
+            marker = flipped;
+        }
+        let pad = 8;
+        let mut image = Mat::default();
+        core::copy_make_border(
+            &marker,
+            &mut image,
+            pad,
+            pad,
+            pad,
+            pad,
+            core::BORDER_CONSTANT,
+            core::Scalar::all(255.0),
+        )
+        .unwrap();
+        let (lo, hi) = (pad as f32, (pad + side - 1) as f32);
+        let quad = [
+            Point2f::new(lo, lo),
+            Point2f::new(hi, lo),
+            Point2f::new(hi, hi),
+            Point2f::new(lo, hi),
+        ];
+        (image, quad)
+    }
+
+    #[test]
+    fn opencv_reading_reads_opencv_markers_printed_and_mirrored_and_no_6x6_marker() {
+        use aruco::PREDEFINED_DICTIONARY_NAME::{DICT_4X4_50, DICT_6X6_250};
+        let book = CodeBook::new(true, Correction::None).unwrap();
+        let checks = Checks::default();
+        let symmetric = book.mirror_symmetric_ids().to_vec();
+        for side in [12, 24] {
+            for id in 0..50 {
+                for mirrored in [false, true] {
+                    let (image, quad) = drawn(DICT_4X4_50, id, side, mirrored);
+                    let d = book
+                        .read_as_opencv(&image, &quad, &checks)
+                        .unwrap()
+                        .unwrap_or_else(|r| {
+                            panic!("id {id}, {side} px, mirrored {mirrored}: {r:?}")
+                        });
+                    assert_eq!(d.id, id as u32);
+                    // A mirror-symmetric code mirrored is the code turned.
+                    let ambiguous = symmetric.contains(&(id as u32));
+                    if !(mirrored && ambiguous) {
+                        assert_eq!(d.rotation, 0, "id {id}");
+                    }
+                    assert_eq!(d.mirrored, mirrored && !ambiguous, "id {id}");
+                    // Our own reading agrees (no larger family claims it).
+                    let ours = book.read(&image, &quad, &checks).unwrap();
+                    assert_eq!(ours.map(|o| o.id), Ok(id as u32), "id {id}, {side} px");
+                }
+            }
+        }
+        // A 6x6 marker is refused wherever its own cells are 2 px or more;
+        // below that OpenCV's reading lands on a 4x4 code for about 1 in 300
+        // (our cell averages alone: none), which the detector lets through
+        // only for near misses of its own reading.
+        let mut small = 0;
+        for side in 9..=32 {
+            for id in 0..250 {
+                let (image, quad) = drawn(DICT_6X6_250, id, side, false);
+                let read = book.read_as_opencv(&image, &quad, &checks).unwrap();
+                assert!(book.read(&image, &quad, &checks).unwrap().is_err());
+                if side >= 16 {
+                    assert!(read.is_err(), "6x6 id {id} at {side} px read as {read:?}");
+                } else if read.is_ok() {
+                    small += 1;
+                }
+            }
+        }
+        assert!(small <= 7 * 250 / 100, "{small} small 6x6 markers read");
     }
 
     #[test]

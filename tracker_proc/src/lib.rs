@@ -53,6 +53,9 @@ pub struct Options {
     pub keep_close_candidates: bool,
     /// Read a refused candidate again on corners fitted to its edges.
     pub reread_refined: bool,
+    /// Read a near miss that its fitted corners do not save as OpenCV reads
+    /// ([`CodeBook::read_as_opencv`]).
+    pub opencv_reading: bool,
     /// How the corners are placed.
     pub refine: Refine,
     /// What a candidate must look like to be read as a marker.
@@ -113,6 +116,7 @@ impl Options {
             correction: Correction::None,
             keep_close_candidates: true,
             reread_refined: true,
+            opencv_reading: true,
             refine: Refine::Lines,
             checks: Checks::default(),
             threshold_windows: ThresholdWindows::STOCK,
@@ -223,7 +227,7 @@ impl Detector {
     /// Whether a refused candidate deserves a second look on fitted corners:
     /// a near miss, not a patch without contrast or a blob.
     fn worth_rereading(&self, refusal: &Refusal) -> bool {
-        self.options.reread_refined
+        (self.options.reread_refined || self.options.opencv_reading)
             && matches!(
                 refusal,
                 Refusal::Border(..4)
@@ -258,14 +262,19 @@ impl Detector {
         grey: &M,
         quad: &[Point2f; 4],
     ) -> Result<Option<([Point2f; 4], Decoded)>> {
-        let Some(fitted) = refine::refine_corners(grey, quad) else {
-            return Ok(None);
-        };
-        Ok(self
-            .book
-            .read(grey, &fitted, &self.options.checks)?
-            .ok()
-            .map(|d| (fitted, d)))
+        if self.options.reread_refined
+            && let Some(fitted) = refine::refine_corners(grey, quad)
+            && let Ok(d) = self.book.read(grey, &fitted, &self.options.checks)?
+        {
+            return Ok(Some((fitted, d)));
+        }
+        if self.options.opencv_reading
+            && f64::from(shortest_side(quad)) <= OPENCV_READING_UP_TO_PX
+            && let Ok(d) = self.book.read_as_opencv(grey, quad, &self.options.checks)?
+        {
+            return Ok(Some((*quad, d)));
+        }
+        Ok(None)
     }
 
     fn quads<M: MatTraitConst + core::ToInputArray>(&self, grey: &M) -> Result<Vec<[Point2f; 4]>> {
@@ -392,6 +401,14 @@ const STOCK_MIN_PERIMETER_RATE: f64 = 0.03;
 /// ones off by 4-10 px (the polygon cuts a blurred corner by up to 9 px,
 /// beyond its window's reach).
 const LINES_UP_TO_PX: f32 = 100.0;
+
+/// Longest shortest side, pixels, of a near miss read again as OpenCV reads
+/// ([`CodeBook::read_as_opencv`]): under about 2.7 px a cell, a lens's blur
+/// spans a whole cell and washes its average towards the threshold, while
+/// on larger cells a cell at the threshold means the pattern is not two-tone
+/// (on the real-image set, the one extra read above this size was a ChArUco
+/// board's 6x6 marker).
+const OPENCV_READING_UP_TO_PX: f64 = 16.0;
 
 /// OpenCV's stock pass, the baseline the benchmarks and the real-image set
 /// compare against: `detectMarkers` with `DICT_4X4_50` and default

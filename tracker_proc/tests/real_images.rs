@@ -114,10 +114,9 @@ fn finds_what_opencv5_finds_and_more_with_a_quarter_of_its_centre_error() {
     let s = &ours.all;
     let stock = &stock5.all;
     assert!(s.reference > 250, "the set shrank: {} markers", s.reference);
-    // Of the markers OpenCV 5's stock pass finds, ours misses at most 1 in 100
-    // (on this set: 2 of 260, both on degraded mirror images).
+    // Every marker OpenCV 5's stock pass finds, ours finds too.
     assert!(
-        100 * s.found_of_reference >= 99 * s.reference,
+        s.found_of_reference == s.reference,
         "ours found {} of OpenCV 5's {}",
         s.found_of_reference,
         s.reference
@@ -138,8 +137,10 @@ fn finds_what_opencv5_finds_and_more_with_a_quarter_of_its_centre_error() {
         "false markers: {:?}",
         s.false_markers
     );
+    // On this set: the fragile-glass pictogram in all seven variants (OpenCV 5
+    // reports it too) and a dark patch of the Eurobot mat with a white dot.
     assert!(
-        s.false_markers.len() <= 10,
+        s.false_markers.len() <= 8,
         "{} false markers",
         s.false_markers.len()
     );
