@@ -655,24 +655,14 @@ fn opencv_cells(
     cells: usize,
 ) -> Result<Option<(Vec<bool>, f64)>> {
     let n = cells as i32 * OPENCV_CELL_PX;
-    let last = (n - 1) as f32;
-    let dst = Vector::<Point2f>::from_iter([
-        Point2f::new(0.0, 0.0),
-        Point2f::new(last, 0.0),
-        Point2f::new(last, last),
-        Point2f::new(0.0, last),
-    ]);
-    let src = Vector::<Point2f>::from_iter(quad.iter().copied());
-    let transform = imgproc::get_perspective_transform(&src, &dst, core::DECOMP_LU)?;
-    let mut warped = Mat::default();
-    imgproc::warp_perspective(
+    // As OpenCV: the corners on the outer pixels' centres, out of the image black.
+    let warped = warp_square(
         image,
-        &mut warped,
-        &transform,
-        Size::new(n, n),
+        quad,
+        (0.0, (n - 1) as f32),
+        n,
         imgproc::INTER_NEAREST,
         core::BORDER_CONSTANT,
-        core::Scalar::default(),
     )?;
     let mut binary = Mat::default();
     let threshold = imgproc::threshold(
@@ -707,6 +697,37 @@ fn opencv_cells(
     Ok(Some((white, contrast)))
 }
 
+/// The candidate warped to an `n` x `n` square whose corners land at
+/// `corners.0` and `corners.1` on both axes.
+fn warp_square(
+    image: &impl core::ToInputArray,
+    quad: &[Point2f; 4],
+    (lo, hi): (f32, f32),
+    n: i32,
+    interpolation: i32,
+    border: i32,
+) -> Result<Mat> {
+    let dst = Vector::<Point2f>::from_iter([
+        Point2f::new(lo, lo),
+        Point2f::new(hi, lo),
+        Point2f::new(hi, hi),
+        Point2f::new(lo, hi),
+    ]);
+    let src = Vector::<Point2f>::from_iter(quad.iter().copied());
+    let transform = imgproc::get_perspective_transform(&src, &dst, core::DECOMP_LU)?;
+    let mut warped = Mat::default();
+    imgproc::warp_perspective(
+        image,
+        &mut warped,
+        &transform,
+        Size::new(n, n),
+        interpolation,
+        border,
+        core::Scalar::default(),
+    )?;
+    Ok(warped)
+}
+
 /// White cells on the border of a `cells` x `cells` grid.
 fn border_whites(white: &[bool], cells: usize) -> u32 {
     (0..cells * cells)
@@ -726,24 +747,13 @@ type Cells = [f64; CELLS * CELLS];
 fn rectify(image: &impl core::ToInputArray, quad: &[Point2f; 4]) -> Result<Cells> {
     let n = CELLS as i32 * CELL_PX;
     // Corners at pixel edges, so that each cell spans whole pixels.
-    let (lo, hi) = (-0.5, n as f32 - 0.5);
-    let dst = Vector::<Point2f>::from_iter([
-        Point2f::new(lo, lo),
-        Point2f::new(hi, lo),
-        Point2f::new(hi, hi),
-        Point2f::new(lo, hi),
-    ]);
-    let src = Vector::<Point2f>::from_iter(quad.iter().copied());
-    let transform = imgproc::get_perspective_transform(&src, &dst, core::DECOMP_LU)?;
-    let mut warped = Mat::default();
-    imgproc::warp_perspective(
+    let warped = warp_square(
         image,
-        &mut warped,
-        &transform,
-        Size::new(n, n),
+        quad,
+        (-0.5, n as f32 - 0.5),
+        n,
         imgproc::INTER_LINEAR,
         core::BORDER_REPLICATE,
-        core::Scalar::default(),
     )?;
     let mut sums = [0u32; CELLS * CELLS];
     let mut counts = [0u32; CELLS * CELLS];
