@@ -224,8 +224,9 @@ impl Detector {
         Ok(out)
     }
 
-    /// Whether a refused candidate deserves a second look on fitted corners:
-    /// a near miss, not a patch without contrast or a blob.
+    /// Whether a refused candidate deserves a second look
+    /// ([`Detector::reread`]): a near miss, not a patch without contrast or
+    /// a blob.
     fn worth_rereading(&self, refusal: &Refusal) -> bool {
         (self.options.reread_refined || self.options.opencv_reading)
             && matches!(
@@ -256,7 +257,8 @@ impl Detector {
 
     /// Reads a candidate again on corners fitted to its edges (whole-pixel
     /// polygon corners put the cells of a small or steeply seen marker off
-    /// by a fraction of a cell).
+    /// by a fraction of a cell); failing that, a small one as OpenCV reads
+    /// ([`OPENCV_READING_UP_TO_PX`]).
     fn reread<M: MatTraitConst + core::ToInputArray>(
         &self,
         grey: &M,
