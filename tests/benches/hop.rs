@@ -24,7 +24,6 @@
 //! `target/bench/hop.json`); under `cargo test` a short pass (50 frames,
 //! 0.5 s of flooding per size), to check it works.
 
-use std::net::TcpListener;
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -215,11 +214,7 @@ fn main() {
     let local = prefix("hop_local");
     let pair = |name: &str, extra: &[&str]| {
         let (a, b) = (prefix(&format!("{name}_a")), prefix(&format!("{name}_b")));
-        let port = TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
+        let port = tests::free_port();
         let endpoint = format!("tcp/127.0.0.1:{port}");
         let ns = format!("mirror/{a}");
         let common = [&["--namespace", &ns][..], extra].concat();

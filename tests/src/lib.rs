@@ -67,6 +67,32 @@ impl Drop for KillOnDrop {
     }
 }
 
+/// A TCP port on 127.0.0.1 that nothing listens on, for a link under test
+/// to listen on. Taken below Linux's ephemeral range (32768 and up): a port
+/// the kernel hands out for binding port 0 is also one it hands to outgoing
+/// connections, and a zenoh peer of a test running beside this one took
+/// such a port between its check and the listen. Each test process starts
+/// at its own place and never offers a port twice.
+pub fn free_port() -> u16 {
+    use std::sync::atomic::{AtomicU16, Ordering};
+    const FIRST: u16 = 20_000;
+    const SPAN: u16 = 12_000;
+    static NEXT: AtomicU16 = AtomicU16::new(0);
+    let start = (std::process::id() % u32::from(SPAN)) as u16;
+    loop {
+        let k = NEXT.fetch_add(1, Ordering::Relaxed);
+        assert!(
+            k < SPAN,
+            "no free TCP port left in {FIRST}..{}",
+            FIRST + SPAN
+        );
+        let port = FIRST + (start + k) % SPAN;
+        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            return port;
+        }
+    }
+}
+
 /// A service prefix unique to this test process and `name`.
 pub fn unique_prefix(name: &str) -> String {
     format!("test{}_{name}", std::process::id())

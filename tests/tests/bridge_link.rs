@@ -10,23 +10,14 @@
 //! Time namespaces need root (`unshare --time`), as the tests of two hosts
 //! do; `MIRROR_SKIP_ROOT_TESTS=1` skips them, saying so.
 
-use std::net::TcpListener;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use messages::topics::{self, TopicId};
 use messages::{Bus, Encoding, FrameHeader, JointState};
 use tests::hosts::{TwoHosts, skip_root_tests};
-use tests::{KillOnDrop, stage_binaries, unique_prefix};
+use tests::{KillOnDrop, free_port, stage_binaries, unique_prefix};
 use zenoh::Wait;
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
 
 /// How far ahead the receiving side's clock is: a day.
 const AHEAD_S: i64 = 86_400;
