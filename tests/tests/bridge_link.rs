@@ -92,6 +92,11 @@ fn joint_state(seq: u64) -> JointState {
 /// A zenoh peer of the test's own that `how` (`listen` or `connect`)s at
 /// `endpoint`, without scouting.
 fn zenoh_peer(how: &str, endpoint: &str) -> zenoh::Session {
+    zenoh_open(how, endpoint).unwrap()
+}
+
+/// [`zenoh_peer`], or why it could not open.
+fn zenoh_open(how: &str, endpoint: &str) -> zenoh::Result<zenoh::Session> {
     let mut config = zenoh::Config::default();
     config.insert_json5("mode", "\"peer\"").unwrap();
     config
@@ -100,7 +105,7 @@ fn zenoh_peer(how: &str, endpoint: &str) -> zenoh::Session {
     config
         .insert_json5(&format!("{how}/endpoints"), &format!("[\"{endpoint}\"]"))
         .unwrap();
-    zenoh::open(config).wait().unwrap()
+    zenoh::open(config).wait()
 }
 
 /// `a` and `b` equal but for their stamps, and `b`'s stamp `a`'s moved by
@@ -603,8 +608,17 @@ fn a_second_robot_on_the_same_network_does_not_disturb_the_first() {
 fn a_receiver_of_another_layout_is_named_by_the_sender_before_it_sends() {
     let robot = unique_prefix("layout_robot");
     let namespace = format!("mirror/{robot}");
-    let listen = format!("tcp/127.0.0.1:{}", free_port());
-    let other = zenoh_peer("listen", &listen);
+    // A port checked free was taken before this peer could listen on it,
+    // in two CI runs: another port then.
+    let (other, listen) = (0..5)
+        .find_map(|_| {
+            let listen = format!("tcp/127.0.0.1:{}", free_port());
+            zenoh_open("listen", &listen)
+                .map_err(|e| eprintln!("listening at {listen}: {e}"))
+                .ok()
+                .map(|s| (s, listen))
+        })
+        .expect("no port to listen on in 5 tries");
     let _receiver = other
         .declare_subscriber(format!("{namespace}/joint_state"))
         .callback(|_| {})
