@@ -212,27 +212,19 @@ fn split_run(config: &str, name: &str, one_host: bool) -> SplitRun {
     SplitRun { dir, logs }
 }
 
-/// Nothing the robot sent went missing on the way or was refused, but for
-/// a frame in a hundred: frames are the one topic the link drops when it is
-/// full (`docs/bridge.md`), and a fresh CI run on a busy machine lost one of
-/// 242 so; every topic its stages publish for the workstation arrived.
+/// Nothing the robot sent went missing on the way or was refused, and
+/// every topic its stages publish for the workstation arrived.
 fn assert_nothing_lost(split: &Value, topics: &[&str]) {
     let c = &split["report"]["counters"];
     assert_eq!(c["joint_states_missed"], 0, "{c}");
     for topic in topics {
-        let lost = counter(split, "bridge", &format!("lost_{topic}"));
-        let received = counter(split, "bridge", &format!("received_{topic}"));
-        let allowed = if *topic == "frames" {
-            received / 100
-        } else {
-            0
-        };
-        assert!(
-            lost <= allowed,
-            "lost {lost} {topic} (at most {allowed}): {}",
+        assert_eq!(
+            counter(split, "bridge", &format!("lost_{topic}")),
+            0,
+            "lost {topic}: {}",
             stage_stats(split, "bridge").map_or(&Value::Null, |s| &s["counters"])
         );
-        assert!(received > 0);
+        assert!(counter(split, "bridge", &format!("received_{topic}")) > 0);
     }
     assert_eq!(counter(split, "bridge", "refused"), 0);
 }
