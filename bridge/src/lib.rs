@@ -38,7 +38,7 @@ use messages::stats::StageStats;
 use messages::topics::TopicId;
 use messages::{AnyPublisher, AnySubscriber, Bus, Rejections, now_ns};
 use zenoh::Wait;
-use zenoh::qos::CongestionControl;
+use zenoh::qos::{CongestionControl, Priority};
 
 use crate::clock::{Applied, Estimator, Offset, RoundTrip};
 
@@ -126,9 +126,38 @@ impl Options {
         set("listen/endpoints", json(&self.listen))?;
         set("connect/endpoints", json(&self.connect))?;
         set("transport/link/tx/lease", self.lease_ms.to_string())?;
+        // Frames travel on their own priority queue, below the small
+        // messages, so joint states never wait behind a frame's fragments.
+        // That queue holds a whole frame (16 batches of 64 KiB), and a frame
+        // is dropped only when the link has had no room for it for a while:
+        // zenoh's default (1 ms a batch) dropped frames on a busy two-core
+        // machine whenever its sending thread was not scheduled for a moment.
+        set(
+            "transport/link/tx/queue/size/data_low",
+            FRAME_QUEUE_BATCHES.to_string(),
+        )?;
+        set(
+            "transport/link/tx/queue/congestion_control/drop/wait_before_drop",
+            FRAME_WAIT_US.to_string(),
+        )?;
+        set(
+            "transport/link/tx/queue/congestion_control/drop/max_wait_before_drop_fragments",
+            FRAME_WAIT_MAX_US.to_string(),
+        )?;
         Ok(config)
     }
 }
+
+/// Batches of 64 KiB the link queues for frames: zenoh's most.
+const FRAME_QUEUE_BATCHES: usize = 16;
+
+/// How long a frame waits for room on the link before it is dropped, per
+/// batch, us: longer than a busy machine leaves a thread unscheduled.
+const FRAME_WAIT_US: u64 = 20_000;
+
+/// The most a frame of many batches waits in all, us: about two frame
+/// periods at 30 fps (a frame later than that is stale).
+const FRAME_WAIT_MAX_US: u64 = 66_000;
 
 /// What a bridge did, per topic (by [`TopicId::index`]), and its latencies.
 pub struct Counters {
@@ -514,14 +543,15 @@ fn send(
     let bus = Bus::new(&options.prefix, "bridge_send")?;
     let mut publishers = Vec::new();
     for &topic in &options.send {
-        let congestion = if topic.carries_frames() {
-            CongestionControl::Drop
+        let (congestion, priority) = if topic.carries_frames() {
+            (CongestionControl::Drop, Priority::DataLow)
         } else {
-            CongestionControl::Block
+            (CongestionControl::Block, Priority::Data)
         };
         let publisher = session
             .declare_publisher(options.key(topic))
             .congestion_control(congestion)
+            .priority(priority)
             .wait()
             .map_err(|e| anyhow::anyhow!("publishing {}: {e}", options.key(topic)))?;
         publishers.push((topic, publisher));

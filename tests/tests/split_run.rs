@@ -318,6 +318,15 @@ fn a_run_split_between_robot_and_workstation_calibrates_as_on_one_host_and_repla
     // still stream: the recording can end with a frame whose detection was
     // on its way, which the replay detects: at most one more at the end.)
     let recording = out("workstation/mirror0/recording.mcap");
+    // A frame the recorder's writer had no room for (a machine too busy for
+    // it at its lower priority) is missing from the recording: the replay
+    // would track from other frames and could not match.
+    assert_eq!(
+        counter(split, "recorder", "frames_dropped_queue_full"),
+        0,
+        "the workstation's recording misses frames: {}",
+        stage_stats(split, "recorder").map_or(&Value::Null, |s| &s["counters"])
+    );
     for kind in ["detections", "frames"] {
         let replayed = out(&format!("replay_{kind}"));
         let replay = Command::new(stage_binaries().join("pipeline"))
