@@ -19,7 +19,10 @@
 //! texture. A moving arm is drawn at several poses over the exposure and
 //! averaged (motion blur); each region is blurred by the defocus at its
 //! depth; sensor noise and optional JPEG compression follow
-//! ([`crate::sensor`]). What the image looks like is a [`Look`].
+//! ([`crate::sensor`]). The still scene's noise is made once, in a few
+//! copies that take turns from frame to frame; only the pixels drawn over
+//! it get noise of their own each frame (noising every pixel took about a
+//! sixth of a frame's time). What the image looks like is a [`Look`].
 
 use std::collections::HashMap;
 
@@ -46,6 +49,10 @@ const CARD_BACK_ALBEDO: f64 = 0.25;
 const ROOM_DEPTH_MM: f64 = 2000.0;
 /// Most poses a moving arm is drawn at over one exposure.
 const MAX_MOTION_STEPS: usize = 6;
+/// Noisy copies of each camera's still image: a frame's background is one
+/// of them (they take turns), and only what is drawn over it each frame
+/// gets noise of its own.
+const NOISY_STILLS: usize = 8;
 
 /// A marker as drawn: id, mirror-reversed, and its code square's corners
 /// (distorted px, TL, TR, BR, BL as printed).
@@ -140,6 +147,9 @@ pub struct Renderer {
     shrunk: HashMap<(u32, i32), Picture>,
     views: [View; 2],
     noise: Noise,
+    /// Per camera, [`NOISY_STILLS`] copies of its still image with sensor
+    /// noise (none when the look has no noise).
+    noisy_stills: [Vec<Vec<u8>>; 2],
 }
 
 /// A rectangle of the image.
@@ -200,14 +210,27 @@ impl Renderer {
             cards,
             shrunk: HashMap::new(),
             views,
+            noisy_stills: [Vec::new(), Vec::new()],
         };
         // The fixed cards do not move: drawn into the still image once.
         let fixed = [renderer.items(None, Facing::Mirror)?];
         for k in 0..2 {
             let mut image = std::mem::take(&mut renderer.views[k].image);
             renderer.shrink_cards(k, &fixed)?;
-            renderer.draw_over(k, &fixed, &mut image)?;
+            let height = renderer.world.rig.cameras[k].intrinsics.height as usize;
+            renderer.draw_over(k, &fixed, &mut image, &mut Drawn::new(height))?;
             renderer.views[k].image = image;
+        }
+        if !renderer.noise.is_silent() {
+            for k in 0..2 {
+                renderer.noisy_stills[k] = (0..NOISY_STILLS as u64)
+                    .map(|v| {
+                        let mut image = renderer.views[k].image.clone();
+                        renderer.noise.add(&mut image, v << 1 | k as u64);
+                        image
+                    })
+                    .collect();
+            }
         }
         Ok(renderer)
     }
@@ -325,10 +348,12 @@ impl Renderer {
         // The two views on two threads: the right one's on a scoped thread.
         let this = &*self;
         let draw = |k: usize, out: &mut [u8]| -> Result<()> {
-            this.draw_view(k, &items_per_pose, out)?;
+            let height = this.world.rig.cameras[k].intrinsics.height as usize;
+            let mut drawn = Drawn::new(height);
+            this.draw_view(k, &items_per_pose, out, &mut drawn)?;
+            this.add_noise(k, out, &mut drawn, seq);
             let width = this.world.rig.cameras[k].intrinsics.width as usize;
-            this.noise
-                .apply(out, width, seq.wrapping_mul(2).wrapping_add(k as u64))
+            this.noise.compress(out, width)
         };
         let (l, r) = std::thread::scope(|s| {
             let r = s.spawn(|| draw(1, right));
@@ -497,13 +522,53 @@ impl Renderer {
     /// Draws one camera's frame: the still scene, then what is seen in the
     /// glass, then what is seen directly; each of those far to near, links
     /// and card backs before cards (a card is held at the wrist).
-    fn draw_view(&self, k: usize, items_per_pose: &[Vec<Item>], out: &mut [u8]) -> Result<()> {
+    /// Where it drew over the still scene goes to `drawn`.
+    fn draw_view(
+        &self,
+        k: usize,
+        items_per_pose: &[Vec<Item>],
+        out: &mut [u8],
+        drawn: &mut Drawn,
+    ) -> Result<()> {
         out.copy_from_slice(&self.views[k].image);
-        self.draw_over(k, items_per_pose, out)
+        self.draw_over(k, items_per_pose, out, drawn)
+    }
+
+    /// Sensor noise over a frame of camera `k` that was `drawn` over its
+    /// still image: the rest is one of the still image's noisy copies; what
+    /// was drawn gets noise of its own.
+    fn add_noise(&self, k: usize, out: &mut [u8], drawn: &mut Drawn, seq: u64) {
+        let stills = &self.noisy_stills[k];
+        if stills.is_empty() {
+            return;
+        }
+        let background = &stills[(seq % stills.len() as u64) as usize];
+        let width = self.world.rig.cameras[k].intrinsics.width as usize;
+        for (y, ((row, still), spans)) in out
+            .chunks_exact_mut(width)
+            .zip(background.chunks_exact(width))
+            .zip(drawn.merged_rows())
+            .enumerate()
+        {
+            let mut x = 0;
+            for &(x0, x1) in spans.iter() {
+                row[x..x0].copy_from_slice(&still[x..x0]);
+                let seed = (seq << 1 | k as u64) ^ ((y as u64) << 32 | x0 as u64);
+                self.noise.add(&mut row[x0..x1], seed);
+                x = x1;
+            }
+            row[x..].copy_from_slice(&still[x..]);
+        }
     }
 
     /// Draws items over what `out` shows: see [`Renderer::draw_view`].
-    fn draw_over(&self, k: usize, items_per_pose: &[Vec<Item>], out: &mut [u8]) -> Result<()> {
+    fn draw_over(
+        &self,
+        k: usize,
+        items_per_pose: &[Vec<Item>],
+        out: &mut [u8],
+        drawn: &mut Drawn,
+    ) -> Result<()> {
         let cam = self.world.rig.cameras[k];
         let middle = &items_per_pose[items_per_pose.len() / 2];
         for mirrored in [true, false] {
@@ -517,7 +582,7 @@ impl Renderer {
                     .total_cmp(&cam.depth(&a.shape.center()))
             });
             for item in plain {
-                self.draw_plain(k, item, out)?;
+                self.draw_plain(k, item, out, drawn)?;
             }
             // Cards: at every pose over the exposure, in regions around them.
             let mut cards: Vec<(usize, &Item, [f64; 4], Region)> = Vec::new();
@@ -573,7 +638,7 @@ impl Renderer {
                         }
                     }
                 }
-                self.composite(k, region, &mut light, &mut alpha, out)?;
+                self.composite(k, region, &mut light, &mut alpha, out, drawn)?;
             }
         }
         Ok(())
@@ -607,8 +672,9 @@ impl Renderer {
 
     /// Draws a link or a card's back straight into the frame: its
     /// anti-aliased outline blurred by the defocus at its depth, at its
-    /// shade, vignetted, only where the glass is for a reflection.
-    fn draw_plain(&self, k: usize, item: &Item, out: &mut [u8]) -> Result<()> {
+    /// shade, vignetted, only where the glass is for a reflection; where
+    /// it drew goes to `drawn`.
+    fn draw_plain(&self, k: usize, item: &Item, out: &mut [u8], drawn: &mut Drawn) -> Result<()> {
         let cam = self.world.rig.cameras[k];
         let Some((_, area)) = self.area(&cam, &item.shape) else {
             return Ok(());
@@ -636,8 +702,13 @@ impl Renderer {
         let mask = mask.data_bytes()?;
         for y in 0..area.h {
             let row = (area.y0 + y) * width + area.x0;
-            for x in 0..area.w {
-                let m = mask[y * area.w + x];
+            let line = &mask[y * area.w..(y + 1) * area.w];
+            let Some((first, last)) = nonzero_span(line) else {
+                continue;
+            };
+            drawn.add(area.y0 + y, area.x0 + first, area.x0 + last + 1);
+            for x in first..=last {
+                let m = line[x];
                 if m == 0 {
                     continue;
                 }
@@ -645,7 +716,7 @@ impl Renderer {
                 let g = if item.mirrored { view.glass[i] } else { 1.0 };
                 let a = f32::from(m) / 255.0 * g;
                 let v = f32::from(out[i]) * (1.0 - a) + (dn * view.gain[i] + flare) * a;
-                out[i] = v.round().clamp(0.0, 255.0) as u8;
+                out[i] = to_dn(v);
             }
         }
         Ok(())
@@ -777,6 +848,7 @@ impl Renderer {
         light: &mut [f32],
         alpha: &mut [f32],
         out: &mut [u8],
+        drawn: &mut Drawn,
     ) -> Result<()> {
         let view = &self.views[k];
         let width = self.world.rig.cameras[k].intrinsics.width as usize;
@@ -795,12 +867,27 @@ impl Renderer {
             blur(alpha, region.w, region.h, sigma)?;
         }
         let flare = self.look.flare_dn as f32;
+        // Only where the blur's tails change a pixel by more than a
+        // hundredth of a DN.
+        let changes = |j: usize| alpha[j] > 4e-5 || light[j] > 0.01;
         for y in 0..region.h {
             let row = (region.y0 + y) * width + region.x0;
-            for x in 0..region.w {
-                let j = y * region.w + x;
+            let js = y * region.w..(y + 1) * region.w;
+            let (Some(first), Some(last)) = (
+                js.clone().find(|&j| changes(j)),
+                js.clone().rfind(|&j| changes(j)),
+            ) else {
+                continue;
+            };
+            let x0 = first - js.start;
+            drawn.add(
+                region.y0 + y,
+                region.x0 + x0,
+                region.x0 + last - js.start + 1,
+            );
+            for (x, j) in (x0..).zip(first..=last) {
                 let v = f32::from(out[row + x]) * (1.0 - alpha[j]) + light[j] + flare * alpha[j];
-                out[row + x] = v.round().clamp(0.0, 255.0) as u8;
+                out[row + x] = to_dn(v);
             }
         }
         Ok(())
@@ -820,6 +907,71 @@ fn blur(data: &mut [f32], w: usize, h: usize, sigma: f64) -> Result<()> {
         core::BORDER_REPLICATE,
     )?;
     Ok(())
+}
+
+/// The nearest 8-bit value (saturating; the cast rounds without the
+/// library call `f32::round` compiles to here).
+fn to_dn(v: f32) -> u8 {
+    (v + 0.5) as u8
+}
+
+/// The first and last non-zero bytes of `line`, found 8 at a time (a link's
+/// mask is mostly zeros around its outline).
+fn nonzero_span(line: &[u8]) -> Option<(usize, usize)> {
+    let words = line.len() / 8;
+    let word = |i: usize| u64::from_ne_bytes(line[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+    let exact =
+        |from: usize, to: usize| line[from..to].iter().position(|&m| m > 0).map(|x| from + x);
+    let first = match (0..words).find(|&i| word(i) != 0) {
+        Some(i) => exact(8 * i, 8 * i + 8)?,
+        None => exact(8 * words, line.len())?,
+    };
+    let tail = line[8 * words..]
+        .iter()
+        .rposition(|&m| m > 0)
+        .map(|x| 8 * words + x);
+    let last = match tail {
+        Some(last) => last,
+        None => {
+            let i = (0..words).rev().find(|&i| word(i) != 0)?;
+            8 * i + line[8 * i..8 * i + 8].iter().rposition(|&m| m > 0)?
+        }
+    };
+    Some((first, last))
+}
+
+/// Where a frame was drawn over its still image: per row, spans of
+/// pixels `x0..x1`.
+struct Drawn {
+    rows: Vec<Vec<(usize, usize)>>,
+}
+
+impl Drawn {
+    fn new(height: usize) -> Self {
+        Self {
+            rows: vec![Vec::new(); height],
+        }
+    }
+
+    fn add(&mut self, y: usize, x0: usize, x1: usize) {
+        self.rows[y].push((x0, x1));
+    }
+
+    /// Each row's spans sorted, overlapping and touching ones merged.
+    fn merged_rows(&mut self) -> impl Iterator<Item = &Vec<(usize, usize)>> {
+        self.rows.iter_mut().map(|spans| {
+            spans.sort_unstable();
+            let mut merged: Vec<(usize, usize)> = Vec::with_capacity(spans.len());
+            for &(x0, x1) in spans.iter() {
+                match merged.last_mut() {
+                    Some(last) if x0 <= last.1 => last.1 = last.1.max(x1),
+                    _ => merged.push((x0, x1)),
+                }
+            }
+            *spans = merged;
+            &*spans
+        })
+    }
 }
 
 fn overlaps(a: &Region, b: &Region) -> bool {
@@ -1032,4 +1184,120 @@ fn polygon_mask(
         Shape::Card { .. } => bail!("cards are drawn from their texture"),
     }
     Ok(mask)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geometry::sim::{Counts, generate, nico_noise, nico_scene};
+
+    #[test]
+    fn the_nonzero_span_of_a_row_is_its_first_and_last_nonzero_byte() {
+        for len in [0, 1, 7, 8, 9, 16, 23, 40] {
+            for a in 0..len {
+                for b in a..len {
+                    let mut line = vec![0u8; len];
+                    line[a] = 3;
+                    line[b] = 200;
+                    assert_eq!(nonzero_span(&line), Some((a, b)), "{len} {a} {b}");
+                }
+            }
+            assert_eq!(nonzero_span(&vec![0u8; len]), None);
+        }
+    }
+
+    #[test]
+    fn drawn_spans_are_merged_where_they_overlap_or_touch() {
+        let mut drawn = Drawn::new(2);
+        for (x0, x1) in [(30, 40), (5, 10), (8, 12), (12, 15), (39, 41)] {
+            drawn.add(1, x0, x1);
+        }
+        let rows: Vec<Vec<(usize, usize)>> = drawn.merged_rows().cloned().collect();
+        assert_eq!(rows, vec![vec![], vec![(5, 15), (30, 41)]]);
+    }
+
+    /// The sensor noise of a frame (its difference from the same frame
+    /// rendered without noise, over each pixel's expected sigma) has the
+    /// same spread on what was drawn over the still scene (the arm's card)
+    /// as on the still scene, and differs from frame to frame on both.
+    #[test]
+    fn what_moves_is_as_noisy_as_the_still_scene_and_the_noise_changes_per_frame() {
+        let data = generate(
+            &nico_scene(),
+            0,
+            &nico_noise(),
+            Counts {
+                train: 1,
+                test: 0,
+                direct: 0,
+            },
+            3,
+        )
+        .unwrap();
+        let q = data.train[0].joints.clone().unwrap();
+        let look = Look {
+            jpeg_quality: None,
+            ..Look::realistic()
+        };
+        let silent = Look {
+            read_noise_dn: 0.0,
+            electrons_per_dn: 0.0,
+            ..look
+        };
+        let world = SimWorld::nico(0).unwrap();
+        let mut noisy = Renderer::with_look(world.clone(), look).unwrap();
+        let mut clean = Renderer::with_look(world, silent).unwrap();
+        let (frames, truth) = noisy.render_pair(&q, Facing::Mirror, 1).unwrap();
+        let (again, _) = noisy.render_pair(&q, Facing::Mirror, 2).unwrap();
+        let (without, _) = clean.render_pair(&q, Facing::Mirror, 1).unwrap();
+        let width = 640;
+        let sigma = |level: u8| {
+            let signal = (f64::from(level) - look.flare_dn).max(0.0);
+            (look.read_noise_dn.powi(2) + signal / look.electrons_per_dn).sqrt()
+        };
+        // The arm's card in the left image: its code square's box.
+        let (_, _, corners) = truth.markers[0]
+            .iter()
+            .find(|m| m.0 == noisy.world().arm_marker)
+            .expect("the arm's card in view");
+        let (lo, hi) = corners.iter().fold(
+            (Vector2::repeat(f64::MAX), Vector2::repeat(f64::MIN)),
+            |(lo, hi), c| (lo.inf(c), hi.sup(c)),
+        );
+        let on_card = |i: usize| {
+            (lo.x..hi.x).contains(&((i % width) as f64))
+                && (lo.y..hi.y).contains(&((i / width) as f64))
+        };
+        let spread = |card: bool| {
+            let z: Vec<f64> = (0..frames[0].len())
+                .filter(|&i| on_card(i) == card && (20..235).contains(&without[0][i]))
+                .map(|i| {
+                    (f64::from(frames[0][i]) - f64::from(without[0][i])) / sigma(without[0][i])
+                })
+                .collect();
+            let mean = z.iter().sum::<f64>() / z.len() as f64;
+            (z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / z.len() as f64).sqrt()
+        };
+        let (card, still) = (spread(true), spread(false));
+        assert!(
+            (0.85..1.15).contains(&card) && (0.85..1.15).contains(&still),
+            "noise over sigma: {card:.3} on the card, {still:.3} on the still scene"
+        );
+        let changed = |card: bool| {
+            let pixels: Vec<usize> = (0..frames[0].len())
+                .filter(|&i| on_card(i) == card)
+                .collect();
+            pixels
+                .iter()
+                .filter(|&&i| frames[0][i] != again[0][i])
+                .count() as f64
+                / pixels.len() as f64
+        };
+        assert!(
+            changed(true) > 0.5 && changed(false) > 0.5,
+            "{} {}",
+            changed(true),
+            changed(false)
+        );
+    }
 }

@@ -97,14 +97,32 @@ impl Noise {
     /// Adds noise to `image` (from the table at an offset drawn from
     /// `seed`), then compresses it if the look says so.
     pub fn apply(&self, image: &mut [u8], width: usize, seed: u64) -> Result<()> {
-        if !self.table.is_empty() {
-            let span = self.table.len() - self.pixels;
-            let offset = (splitmix(seed) % span as u64) as usize;
-            let draws = &self.table[offset..offset + image.len()];
-            for (p, &n) in image.iter_mut().zip(draws) {
-                *p = self.noisy[usize::from(*p) << 8 | usize::from(n as u8)];
-            }
+        self.add(image, seed);
+        self.compress(image, width)
+    }
+
+    /// Whether it adds no noise (the look has none).
+    pub fn is_silent(&self) -> bool {
+        self.table.is_empty()
+    }
+
+    /// Adds noise to `pixels` (an image or part of one, at most as many
+    /// pixels as the noise was made for), from the table at an offset drawn
+    /// from `seed`.
+    pub fn add(&self, pixels: &mut [u8], seed: u64) {
+        if self.table.is_empty() {
+            return;
         }
+        let span = self.table.len() - pixels.len().min(self.pixels);
+        let offset = (splitmix(seed) % span as u64) as usize;
+        let draws = &self.table[offset..];
+        for (p, &n) in pixels.iter_mut().zip(draws) {
+            *p = self.noisy[usize::from(*p) << 8 | usize::from(n as u8)];
+        }
+    }
+
+    /// Compresses `image` as MJPEG would, if the look says so.
+    pub fn compress(&self, image: &mut [u8], width: usize) -> Result<()> {
         if let Some(quality) = self.quality {
             jpeg_round_trip(image, width, quality)?;
         }
