@@ -94,13 +94,6 @@ impl Noise {
         }
     }
 
-    /// Adds noise to `image` (from the table at an offset drawn from
-    /// `seed`), then compresses it if the look says so.
-    pub fn apply(&self, image: &mut [u8], width: usize, seed: u64) -> Result<()> {
-        self.add(image, seed);
-        self.compress(image, width)
-    }
-
     /// Whether it adds no noise (the look has none).
     pub fn is_silent(&self) -> bool {
         self.table.is_empty()
@@ -168,7 +161,7 @@ mod tests {
         let noise = Noise::new(&look, n, 3);
         for level in [20u8, 120, 220] {
             let mut image = vec![level; n];
-            noise.apply(&mut image, 1000, 11).unwrap();
+            noise.add(&mut image, 11);
             let mean = image.iter().map(|&v| f64::from(v)).sum::<f64>() / n as f64;
             let var = image
                 .iter()
@@ -190,8 +183,8 @@ mod tests {
             );
         }
         let (mut a, mut b) = (vec![100u8; n], vec![100u8; n]);
-        noise.apply(&mut a, 1000, 1).unwrap();
-        noise.apply(&mut b, 1000, 2).unwrap();
+        noise.add(&mut a, 1);
+        noise.add(&mut b, 2);
         assert_ne!(a, b, "seeds give different noise");
     }
 
@@ -206,7 +199,8 @@ mod tests {
             .map(|i| if (i % 64) / 8 % 2 == 0 { 30 } else { 220 })
             .collect();
         let before = image.clone();
-        noise.apply(&mut image, 64, 0).unwrap();
+        noise.add(&mut image, 0);
+        noise.compress(&mut image, 64).unwrap();
         assert_ne!(image, before);
         let diff = image
             .iter()
