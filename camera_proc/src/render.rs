@@ -872,20 +872,16 @@ impl Renderer {
         let changes = |j: usize| alpha[j] > 4e-5 || light[j] > 0.01;
         for y in 0..region.h {
             let row = (region.y0 + y) * width + region.x0;
-            let js = y * region.w..(y + 1) * region.w;
+            let base = y * region.w;
             let (Some(first), Some(last)) = (
-                js.clone().find(|&j| changes(j)),
-                js.clone().rfind(|&j| changes(j)),
+                (0..region.w).find(|&x| changes(base + x)),
+                (0..region.w).rfind(|&x| changes(base + x)),
             ) else {
                 continue;
             };
-            let x0 = first - js.start;
-            drawn.add(
-                region.y0 + y,
-                region.x0 + x0,
-                region.x0 + last - js.start + 1,
-            );
-            for (x, j) in (x0..).zip(first..=last) {
+            drawn.add(region.y0 + y, region.x0 + first, region.x0 + last + 1);
+            for x in first..=last {
+                let j = base + x;
                 let v = f32::from(out[row + x]) * (1.0 - alpha[j]) + light[j] + flare * alpha[j];
                 out[row + x] = to_dn(v);
             }
@@ -915,29 +911,22 @@ fn to_dn(v: f32) -> u8 {
     (v + 0.5) as u8
 }
 
-/// The first and last non-zero bytes of `line`, found 8 at a time (a link's
-/// mask is mostly zeros around its outline).
+/// The first and last non-zero bytes of `line`, looked for 8 at a time (a
+/// link's mask is mostly zeros around its outline).
 fn nonzero_span(line: &[u8]) -> Option<(usize, usize)> {
-    let words = line.len() / 8;
-    let word = |i: usize| u64::from_ne_bytes(line[8 * i..8 * i + 8].try_into().expect("8 bytes"));
-    let exact =
-        |from: usize, to: usize| line[from..to].iter().position(|&m| m > 0).map(|x| from + x);
-    let first = match (0..words).find(|&i| word(i) != 0) {
-        Some(i) => exact(8 * i, 8 * i + 8)?,
-        None => exact(8 * words, line.len())?,
+    let nonzero = |c: &[u8]| match <[u8; 8]>::try_from(c) {
+        Ok(word) => u64::from_ne_bytes(word) != 0,
+        Err(_) => c.iter().any(|&m| m > 0),
     };
-    let tail = line[8 * words..]
-        .iter()
-        .rposition(|&m| m > 0)
-        .map(|x| 8 * words + x);
-    let last = match tail {
-        Some(last) => last,
-        None => {
-            let i = (0..words).rev().find(|&i| word(i) != 0)?;
-            8 * i + line[8 * i..8 * i + 8].iter().rposition(|&m| m > 0)?
-        }
-    };
-    Some((first, last))
+    let chunk = |i: usize| &line[8 * i..(8 * i + 8).min(line.len())];
+    let (first, last) = (
+        line.chunks(8).position(nonzero)?,
+        line.chunks(8).rposition(nonzero)?,
+    );
+    Some((
+        8 * first + chunk(first).iter().position(|&m| m > 0)?,
+        8 * last + chunk(last).iter().rposition(|&m| m > 0)?,
+    ))
 }
 
 /// Where a frame was drawn over its still image: per row, spans of
