@@ -350,7 +350,8 @@ impl Renderer {
         let draw = |k: usize, out: &mut [u8]| -> Result<()> {
             let height = this.world.rig.cameras[k].intrinsics.height as usize;
             let mut drawn = Drawn::new(height);
-            this.draw_view(k, &items_per_pose, out, &mut drawn)?;
+            out.copy_from_slice(&this.views[k].image);
+            this.draw_over(k, &items_per_pose, out, &mut drawn)?;
             this.add_noise(k, out, &mut drawn, seq);
             let width = this.world.rig.cameras[k].intrinsics.width as usize;
             this.noise.compress(out, width)
@@ -519,21 +520,6 @@ impl Renderer {
         Ok(items)
     }
 
-    /// Draws one camera's frame: the still scene, then what is seen in the
-    /// glass, then what is seen directly; each of those far to near, links
-    /// and card backs before cards (a card is held at the wrist).
-    /// Where it drew over the still scene goes to `drawn`.
-    fn draw_view(
-        &self,
-        k: usize,
-        items_per_pose: &[Vec<Item>],
-        out: &mut [u8],
-        drawn: &mut Drawn,
-    ) -> Result<()> {
-        out.copy_from_slice(&self.views[k].image);
-        self.draw_over(k, items_per_pose, out, drawn)
-    }
-
     /// Sensor noise over a frame of camera `k` that was `drawn` over its
     /// still image: the rest is one of the still image's noisy copies; what
     /// was drawn gets noise of its own.
@@ -561,7 +547,10 @@ impl Renderer {
         }
     }
 
-    /// Draws items over what `out` shows: see [`Renderer::draw_view`].
+    /// Draws items over what `out` shows (a frame starts as the still
+    /// scene): what is seen in the glass, then what is seen directly; each
+    /// of those far to near, links and card backs before cards (a card is
+    /// held at the wrist). Where it drew goes to `drawn`.
     fn draw_over(
         &self,
         k: usize,
