@@ -3,15 +3,19 @@
 //! OpenCV's `cornerSubPix` looks at a fixed window around each corner; on a
 //! small marker next to a label or another marker that window reaches the
 //! neighbour's edges and the corner is pulled onto them. Here each outer
-//! edge is located over its whole length instead: every pixel in a thin band
-//! along the edge votes with the part of its brightness gradient that
-//! points outward (dark border inside, light surround outside), the line is
-//! the weighted total-least-squares fit of those pixels, and the corners are
-//! where adjacent lines meet. Gradients of the other sense (a label's edge
-//! beyond the white margin, the inner edge of the border) get no vote. A
-//! long edge, which lens distortion bends, is fitted by halves, each corner
-//! from the halves that meet there; the first look reaches up to 8 px from
-//! the candidate's edge, as far as a blurred corner's polygon may be off.
+//! edge is located over its whole length instead: in every pixel column (or
+//! row) that crosses it, the edge is where the part of the brightness
+//! gradient that points outward (dark border inside, light surround
+//! outside) peaks, to a sub-pixel by a parabola through the peak; the line
+//! is the weighted total-least-squares fit of those points, and the corners
+//! are where adjacent lines meet. Gradients of the other sense (a label's
+//! edge beyond the white margin, the inner edge of the border) never peak.
+//! A long edge, which lens distortion bends, is fitted by halves, each
+//! corner from the halves that meet there; the first look reaches up to
+//! 8 px from the candidate's edge, as far as a blurred corner's polygon may
+//! be off. A peak is where the edge is wherever the look was centred, so
+//! the corners do not depend on which candidate polygon they started from
+//! (a full scan's or a window's, at any threshold scale).
 
 use nalgebra::{Matrix2, Vector2};
 use opencv::core::Point2f;
@@ -29,7 +33,7 @@ const SPLIT_EDGES_OVER_PX: f64 = 80.0;
 const NARROW_PASSES: usize = 2;
 
 /// A line `normal . p = offset`, `normal` of unit length.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct Line {
     normal: Vector2<f64>,
     offset: f64,
@@ -108,54 +112,103 @@ impl Patch {
     }
 }
 
-/// An edge: pixels in a band along a-b, each weighted by the square of its
-/// outward gradient.
+/// An edge: points on it, each weighted by the square of its outward
+/// gradient.
 struct Band {
     points: Vec<(Vector2<f64>, f64)>,
 }
 
 impl Band {
-    /// The pixels between `END_MARGIN` and `1 - END_MARGIN` along the edge
-    /// from `a` to `b` that lie within `half_width` of `line` and whose
-    /// brightness rises outward.
+    /// Where the edge from `a` to `b` crosses each pixel column (or row,
+    /// for an edge steeper than 45 degrees) between `END_MARGIN` and
+    /// `1 - END_MARGIN` of its length: the sub-pixel peak of the outward
+    /// gradient (brightness rising outward) among the pixels within
+    /// `half_width` of `line`. A peak at the end of its run lies beyond the
+    /// band and is left out. Each point is where the edge is, wherever in
+    /// the band the look was centred: the fit does not depend on its start.
     fn collect(
         grey: &Patch,
         (a, b): (Vector2<f64>, Vector2<f64>),
         span: (f64, f64),
-        outward: Vector2<f64>,
         line: Line,
         half_width: f64,
     ) -> Option<Self> {
+        let outward = line.normal;
         let length = (b - a).norm();
         let along = (b - a) / length;
-        let (lo, hi) = (
-            a.zip_map(&b, f64::min).add_scalar(-half_width - 1.0),
-            a.zip_map(&b, f64::max).add_scalar(half_width + 1.0),
-        );
-        // A long edge has pixels to spare: every other one (a checkerboard)
-        // halves the work without favouring either side.
-        let sparse = length > 60.0;
-        let mut points = Vec::new();
-        for y in lo.y.floor() as i32..=hi.y.ceil() as i32 {
-            for x in lo.x.floor() as i32..=hi.x.ceil() as i32 {
-                if (sparse && (x + y) % 2 != 0) || !grey.interior(x, y) {
-                    continue;
-                }
-                let p = Vector2::new(f64::from(x), f64::from(y));
-                let t = (p - a).dot(&along) / length;
-                if !(span.0..=span.1).contains(&t) {
-                    continue;
-                }
-                if (line.normal.dot(&p) - line.offset).abs() > half_width {
-                    continue;
-                }
-                let outward_gradient = grey.gradient(x, y).dot(&outward);
-                if outward_gradient > 0.0 {
-                    points.push((p, outward_gradient * outward_gradient));
-                }
+        // Scan across the edge along the axis nearer its normal.
+        let steep = line.normal.x.abs() > line.normal.y.abs();
+        let (n_scan, n_across) = if steep {
+            (line.normal.y, line.normal.x)
+        } else {
+            (line.normal.x, line.normal.y)
+        };
+        let to_xy = |s: i32, u: i32| if steep { (u, s) } else { (s, u) };
+        let point = |s: f64, u: f64| {
+            if steep {
+                Vector2::new(u, s)
+            } else {
+                Vector2::new(s, u)
             }
+        };
+        let (s_lo, s_hi) = if steep {
+            (a.y.min(b.y), a.y.max(b.y))
+        } else {
+            (a.x.min(b.x), a.x.max(b.x))
+        };
+        // A long edge has columns to spare: every even one halves the work
+        // (the same ones whatever the start).
+        let stride = if length > 60.0 { 2 } else { 1 };
+        let first = if stride == 2 {
+            s_lo.floor() as i32 & !1
+        } else {
+            s_lo.floor() as i32
+        };
+        let reach = half_width / n_across.abs();
+        let mut points = Vec::new();
+        let mut run: Vec<f64> = Vec::new();
+        for s in (first..=s_hi.ceil() as i32).step_by(stride) {
+            // The line's crossing of this column, across the edge.
+            let centre = (line.offset - n_scan * f64::from(s)) / n_across;
+            let t = (point(f64::from(s), centre) - a).dot(&along) / length;
+            if !(span.0..=span.1).contains(&t) {
+                continue;
+            }
+            let (u0, u1) = (
+                (centre - reach).ceil() as i32,
+                (centre + reach).floor() as i32,
+            );
+            run.clear();
+            for u in u0..=u1 {
+                let (x, y) = to_xy(s, u);
+                run.push(if grey.interior(x, y) {
+                    grey.gradient(x, y).dot(&outward)
+                } else {
+                    f64::NAN
+                });
+            }
+            // NaN (outside the image) never wins; a peak at either end of
+            // the run, or not rising outward, is not this edge's.
+            let Some(k) = (0..run.len())
+                .filter(|&k| run[k] > 0.0)
+                .max_by(|&i, &j| run[i].total_cmp(&run[j]))
+            else {
+                continue;
+            };
+            if k == 0 || k + 1 == run.len() || run[k - 1].is_nan() || run[k + 1].is_nan() {
+                continue;
+            }
+            let (g0, g1, g2) = (run[k - 1], run[k], run[k + 1]);
+            let curvature = g0 - 2.0 * g1 + g2;
+            let delta = if curvature < 0.0 {
+                (0.5 * (g0 - g2) / curvature).clamp(-0.5, 0.5)
+            } else {
+                0.0
+            };
+            let u = f64::from(u0 + k as i32) + delta;
+            points.push((point(f64::from(s), u), g1 * g1));
         }
-        (points.len() >= 4).then_some(Self { points })
+        (points.len() >= 3).then_some(Self { points })
     }
 
     /// The weighted total-least-squares line, its normal pointing outward.
@@ -192,21 +245,49 @@ impl Band {
 /// gives no line or the corners would move implausibly far (more than a
 /// fifth of the shortest side).
 pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Option<[Point2f; 4]> {
-    let c: Vec<Vector2<f64>> = corners
-        .iter()
-        .map(|p| Vector2::new(f64::from(p.x), f64::from(p.y)))
-        .collect();
+    let c: [Vector2<f64>; 4] = corners.map(|p| Vector2::new(f64::from(p.x), f64::from(p.y)));
     // The widest look is MAX_WIDE px beyond an edge, plus the Sobel window.
     let grey = Patch::around(image, &c, MAX_WIDE + 3.0)?;
-    let center = c.iter().sum::<Vector2<f64>>() / 4.0;
     let shortest = (0..4)
         .map(|k| (c[(k + 1) % 4] - c[k]).norm())
         .fold(f64::INFINITY, f64::min);
-    // Per edge, the line near its start and the line near its end: one
-    // line over the whole edge, or on a long edge (which the lens bends) a
-    // line over each half.
+    // A long edge, which the lens bends, is fitted by halves.
     let halves = shortest > SPLIT_EDGES_OVER_PX;
-    let mut lines = Vec::with_capacity(4);
+    // A wide look about the candidate's edges (its corners are whole
+    // pixels), then narrow ones about the last fits, each over the edges
+    // between the last fit's corners: what the corners settle on does not
+    // depend on the candidate's polygon.
+    let wide = (0.12 * shortest).clamp(2.5, MAX_WIDE);
+    let narrow = (0.5 * wide).max(2.0);
+    let mut lines = edge_lines(&grey, &c, None, halves, wide)?;
+    for _ in 0..NARROW_PASSES {
+        let fitted = corners_of(&lines)?;
+        lines = edge_lines(&grey, &fitted, Some(&lines), halves, narrow)?;
+    }
+    let fitted = corners_of(&lines)?;
+    let mut out = [Point2f::default(); 4];
+    for k in 0..4 {
+        if (fitted[k] - c[k]).norm() > 0.2 * shortest {
+            return None;
+        }
+        out[k] = Point2f::new(fitted[k].x as f32, fitted[k].y as f32);
+    }
+    Some(out)
+}
+
+/// Per edge of the quadrilateral `c`, the line near its start and the line
+/// near its end (the same line, or with `halves` one over each half),
+/// fitted to the edge points within `half_width` of the lines `about` (of
+/// the edge itself when there are none).
+fn edge_lines(
+    grey: &Patch,
+    c: &[Vector2<f64>; 4],
+    about: Option<&[(Line, Line); 4]>,
+    halves: bool,
+    half_width: f64,
+) -> Option<[(Line, Line); 4]> {
+    let center = c.iter().sum::<Vector2<f64>>() / 4.0;
+    let mut lines = [(Line::default(), Line::default()); 4];
     for k in 0..4 {
         let (a, b) = (c[k], c[(k + 1) % 4]);
         let along = (b - a).normalize();
@@ -214,37 +295,33 @@ pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Opt
         if outward.dot(&((a + b) / 2.0 - center)) < 0.0 {
             outward = -outward;
         }
-        let start = Line {
+        let edge = Line {
             normal: outward,
             offset: outward.dot(&a),
         };
-        let fit = |span: (f64, f64)| -> Option<Line> {
-            // A wide look first (the candidate's corners are whole pixels),
-            // then narrow ones about the last fit.
-            let wide = (0.12 * shortest).clamp(1.5, MAX_WIDE);
-            let mut line =
-                Band::collect(&grey, (a, b), span, outward, start, wide)?.line(outward)?;
-            let narrow = (0.5 * wide).max(1.2);
-            for _ in 0..NARROW_PASSES {
-                line = Band::collect(&grey, (a, b), span, outward, line, narrow)?.line(outward)?;
-            }
-            Some(line)
+        let (first, second) = about.map_or((edge, edge), |l| l[k]);
+        let fit = |span: (f64, f64), about: Line| -> Option<Line> {
+            Band::collect(grey, (a, b), span, about, half_width)?.line(about.normal)
         };
-        if halves {
-            lines.push((fit((END_MARGIN, 0.5))?, fit((0.5, 1.0 - END_MARGIN))?));
+        lines[k] = if halves {
+            (
+                fit((END_MARGIN, 0.5), first)?,
+                fit((0.5, 1.0 - END_MARGIN), second)?,
+            )
         } else {
-            let line = fit((END_MARGIN, 1.0 - END_MARGIN))?;
-            lines.push((line, line));
-        }
+            let line = fit((END_MARGIN, 1.0 - END_MARGIN), first)?;
+            (line, line)
+        };
     }
-    let mut out = [Point2f::default(); 4];
-    for k in 0..4 {
-        // Corner k ends edge k - 1 and starts edge k.
-        let p = lines[(k + 3) % 4].1.intersect(&lines[k].0)?;
-        if (p - c[k]).norm() > 0.2 * shortest {
-            return None;
-        }
-        out[k] = Point2f::new(p.x as f32, p.y as f32);
+    Some(lines)
+}
+
+/// Where adjacent edges' lines meet: corner k ends edge k - 1 and starts
+/// edge k.
+fn corners_of(lines: &[(Line, Line); 4]) -> Option<[Vector2<f64>; 4]> {
+    let mut corners = [Vector2::zeros(); 4];
+    for (k, corner) in corners.iter_mut().enumerate() {
+        *corner = lines[(k + 3) % 4].1.intersect(&lines[k].0)?;
     }
-    Some(out)
+    Some(corners)
 }
