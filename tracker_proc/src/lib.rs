@@ -155,17 +155,15 @@ impl Detector {
         if options.keep_close_candidates {
             params.set_min_marker_distance_rate(0.0);
         }
-        let windows = options.threshold_windows;
-        params.set_adaptive_thresh_win_size_min(windows.min);
-        params.set_adaptive_thresh_win_size_max(windows.max);
-        params.set_adaptive_thresh_win_size_step(windows.step);
-        Ok(Self {
+        let mut detector = Self {
             book: CodeBook::new(options.mirrored, options.correction)?,
             options,
             dictionary,
             params,
             grey: Mat::default(),
-        })
+        };
+        detector.set_threshold_windows(options.threshold_windows);
+        Ok(detector)
     }
 
     /// Ids whose mirror image is the code turned (8, 9, 17, 47): found when
@@ -207,6 +205,28 @@ impl Detector {
         self.params
             .set_min_marker_perimeter_rate(STOCK_MIN_PERIMETER_RATE);
         found
+    }
+
+    /// [`Detector::detect_at_least`] with one adaptive-threshold window of
+    /// `size` pixels in place of the detector's scales: for a window around
+    /// markers of a known size, the scale that suits them.
+    pub fn detect_at_least_at_scale<M: MatTraitConst + core::ToInputArray>(
+        &mut self,
+        image: &M,
+        min_side: f64,
+        size: i32,
+    ) -> Result<Vec<Marker>> {
+        let scale = ThresholdWindows::single(size);
+        self.set_threshold_windows(scale);
+        let found = self.detect_at_least(image, min_side);
+        self.set_threshold_windows(self.options.threshold_windows);
+        found
+    }
+
+    fn set_threshold_windows(&mut self, windows: ThresholdWindows) {
+        self.params.set_adaptive_thresh_win_size_min(windows.min);
+        self.params.set_adaptive_thresh_win_size_max(windows.max);
+        self.params.set_adaptive_thresh_win_size_step(windows.step);
     }
 
     /// Every candidate quadrilateral of a grey image (OpenCV's accepted ones

@@ -269,12 +269,14 @@ fn search_windows(
     let (width, height) = (image.cols(), image.rows());
     let mut found = Vec::new();
     let mut cut = Vec::new();
-    for (window, min_side) in merged_windows(last, width, height, 1.0) {
-        found.extend(search_window(detector, image, window, min_side, &mut cut)?);
+    for (window, min_side, expected) in merged_windows(last, width, height, 1.0) {
+        found.extend(search_window(
+            detector, image, window, min_side, expected, &mut cut,
+        )?);
     }
     let mut still_cut = Vec::new();
-    for (window, min_side) in merged_windows(&cut, width, height, 2.0) {
-        for m in search_window(detector, image, window, min_side, &mut still_cut)? {
+    for (window, min_side, expected) in merged_windows(&cut, width, height, 2.0) {
+        for m in search_window(detector, image, window, min_side, expected, &mut still_cut)? {
             if !found.iter().any(|f| same(f, &m)) {
                 found.push(m);
             }
@@ -286,19 +288,34 @@ fn search_windows(
 /// The windows around `markers` (see [`window_around`], with the growth
 /// times `grow`), overlapping ones merged, each with the smallest side
 /// searched for in it: half the smallest of its markers' (none shrinks by
-/// half in a frame).
-fn merged_windows(markers: &[Marker], width: i32, height: i32, grow: f64) -> Vec<(Rect, f64)> {
-    let mut windows: Vec<(Rect, f64)> = Vec::new();
+/// half in a frame), and how many markers it was made for.
+fn merged_windows(
+    markers: &[Marker],
+    width: i32,
+    height: i32,
+    grow: f64,
+) -> Vec<(Rect, f64, usize)> {
+    let mut windows: Vec<(Rect, f64, usize)> = Vec::new();
     for m in markers {
-        let (mut window, mut min_side) = (window_around(m, width, height, grow), 0.5 * shortest(m));
+        let (mut window, mut min_side, mut count) =
+            (window_around(m, width, height, grow), 0.5 * shortest(m), 1);
         while let Some(j) = windows.iter().position(|w| (w.0 & window).area() > 0) {
-            let (other, other_side) = windows.swap_remove(j);
+            let (other, other_side, other_count) = windows.swap_remove(j);
             window |= other;
             min_side = min_side.min(other_side);
+            count += other_count;
         }
-        windows.push((window, min_side));
+        windows.push((window, min_side, count));
     }
     windows
+}
+
+/// The one adaptive-threshold window for markers of at least `min_side`
+/// (half the smallest marker's side): about one and a half cells of the
+/// smallest marker, odd, within OpenCV's default scales (3 to 23 px).
+fn threshold_scale(min_side: f64) -> i32 {
+    let cell = 2.0 * min_side / 6.0;
+    ((1.5 * cell).round() as i32 | 1).clamp(3, 23)
 }
 
 /// The markers of one window, in image pixels; those its edge cuts go to
@@ -308,12 +325,20 @@ fn search_window(
     image: &(impl MatTraitConst + opencv::core::ToInputArray),
     window: Rect,
     min_side: f64,
+    expected: usize,
     cut: &mut Vec<Marker>,
 ) -> Result<Vec<Marker>> {
     let (width, height) = (image.cols(), image.rows());
     let view = Mat::roi(image, window)?;
+    // One threshold scale suited to the markers' size first; all of the
+    // detector's scales when that does not find as many as were there.
+    let mut markers =
+        detector.detect_at_least_at_scale(&view, min_side, threshold_scale(min_side))?;
+    if markers.len() < expected {
+        markers = detector.detect_at_least(&view, min_side)?;
+    }
     let mut found = Vec::new();
-    for mut m in detector.detect_at_least(&view, min_side)? {
+    for mut m in markers {
         let clear = clear_of_edges(&m, window, width, height);
         let (dx, dy) = (f64::from(window.x), f64::from(window.y));
         for k in 0..4 {
