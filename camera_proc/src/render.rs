@@ -150,6 +150,27 @@ pub struct Renderer {
     /// Per camera, [`NOISY_STILLS`] copies of its still image with sensor
     /// noise (none when the look has no noise).
     noisy_stills: [Vec<Vec<u8>>; 2],
+    /// The views last drawn, before noise: reused while the arm holds still.
+    last_drawn: Option<LastDrawn>,
+    /// Frames drawn anew, not reused.
+    frames_drawn: u64,
+}
+
+/// The two views of a frame drawn over their still images, before the
+/// sensor's noise, and the arm's poses over the exposure they show. A
+/// frame with the same poses (the arm held still) shows the same drawing,
+/// noised afresh: drawing it again would give the same bytes.
+struct LastDrawn {
+    open: Vec<f64>,
+    close: Vec<f64>,
+    faces: Facing,
+    views: [DrawnView; 2],
+}
+
+/// One view drawn over its still image, and where.
+struct DrawnView {
+    image: Vec<u8>,
+    drawn: Drawn,
 }
 
 /// A rectangle of the image.
@@ -211,6 +232,8 @@ impl Renderer {
             shrunk: HashMap::new(),
             views,
             noisy_stills: [Vec::new(), Vec::new()],
+            last_drawn: None,
+            frames_drawn: 0,
         };
         // The fixed cards do not move: drawn into the still image once.
         let fixed = [renderer.items(None, Facing::Mirror)?];
@@ -306,19 +329,23 @@ impl Renderer {
                 .unzip(),
             _ => (q.to_vec(), q.to_vec()),
         };
-        let steps = self.motion_steps(&open, &close, arm_faces)?;
-        let poses: Vec<Vec<f64>> = (0..steps)
-            .map(|s| {
+        let reused = self
+            .last_drawn
+            .take()
+            .filter(|l| l.open == open && l.close == close && l.faces == arm_faces);
+        let mut items_per_pose = Vec::new();
+        if reused.is_none() {
+            self.frames_drawn += 1;
+            let steps = self.motion_steps(&open, &close, arm_faces)?;
+            for s in 0..steps {
                 let f = (s as f64 + 0.5) / steps as f64;
-                open.iter()
+                let pose: Vec<f64> = open
+                    .iter()
                     .zip(&close)
                     .map(|(a, b)| a + (b - a) * f)
-                    .collect()
-            })
-            .collect();
-        let mut items_per_pose = Vec::with_capacity(steps);
-        for pose in &poses {
-            items_per_pose.push(self.items(Some(pose), arm_faces)?);
+                    .collect();
+                items_per_pose.push(self.items(Some(&pose), arm_faces)?);
+            }
         }
         let code_side = MARKER_SIZE_MM;
         for k in 0..2 {
@@ -347,21 +374,46 @@ impl Renderer {
         }
         // The two views on two threads: the right one's on a scoped thread.
         let this = &*self;
-        let draw = |k: usize, out: &mut [u8]| -> Result<()> {
-            let height = this.world.rig.cameras[k].intrinsics.height as usize;
-            let mut drawn = Drawn::new(height);
-            out.copy_from_slice(&this.views[k].image);
-            this.draw_over(k, &items_per_pose, out, &mut drawn)?;
-            this.add_noise(k, out, &mut drawn, seq);
+        let draw = |k: usize, out: &mut [u8], last: Option<DrawnView>| -> Result<DrawnView> {
+            let mut view = match last {
+                Some(view) => {
+                    out.copy_from_slice(&view.image);
+                    view
+                }
+                None => {
+                    let height = this.world.rig.cameras[k].intrinsics.height as usize;
+                    let mut drawn = Drawn::new(height);
+                    out.copy_from_slice(&this.views[k].image);
+                    this.draw_over(k, &items_per_pose, out, &mut drawn)?;
+                    DrawnView {
+                        image: out.to_vec(),
+                        drawn,
+                    }
+                }
+            };
+            this.add_noise(k, out, &mut view.drawn, seq);
             let width = this.world.rig.cameras[k].intrinsics.width as usize;
-            this.noise.compress(out, width)
+            this.noise.compress(out, width)?;
+            Ok(view)
+        };
+        let [last_left, last_right] = match reused {
+            Some(l) => l.views.map(Some),
+            None => [None, None],
         };
         let (l, r) = std::thread::scope(|s| {
-            let r = s.spawn(|| draw(1, right));
-            (draw(0, left), r.join())
+            let r = s.spawn(|| draw(1, right, last_right));
+            (draw(0, left, last_left), r.join())
         });
-        l?;
-        r.map_err(|_| anyhow::anyhow!("drawing the right view panicked"))??;
+        let views = [
+            l?,
+            r.map_err(|_| anyhow::anyhow!("drawing the right view panicked"))??,
+        ];
+        self.last_drawn = Some(LastDrawn {
+            open,
+            close,
+            faces: arm_faces,
+            views,
+        });
         Ok(truth)
     }
 
@@ -1276,6 +1328,69 @@ mod tests {
             "{} {}",
             changed(true),
             changed(false)
+        );
+    }
+
+    /// A frame whose arm poses are those of the last frame (the arm held
+    /// still) reuses its drawing and noises it afresh: every frame of a
+    /// sequence that moves, holds still and moves again is the same, byte
+    /// for byte, as one drawn from nothing.
+    #[test]
+    fn a_still_arm_is_drawn_once_and_every_frame_is_what_drawing_it_anew_gives() {
+        let data = generate(
+            &nico_scene(),
+            0,
+            &nico_noise(),
+            Counts {
+                train: 2,
+                test: 0,
+                direct: 0,
+            },
+            3,
+        )
+        .unwrap();
+        let poses: Vec<Vec<f64>> = data
+            .train
+            .iter()
+            .map(|s| s.joints.clone().unwrap())
+            .collect();
+        let sequence = geometry::sim::sweep(&poses, 2, 3, 30.0);
+        let world = SimWorld::nico(0).unwrap();
+        let mut renderer = Renderer::new(world.clone()).unwrap();
+        let mut fresh = Renderer::new(world).unwrap();
+        let (mut reused, mut redrawn) = (0, 0);
+        for (seq, (q, speed)) in sequence.iter().enumerate() {
+            let [mut l, mut r, mut fl, mut fr] = [(); 4].map(|_| vec![0u8; 640 * 480]);
+            let still = seq > 0
+                && speed.iter().all(|v| *v == 0.0)
+                && sequence[seq - 1].0 == *q
+                && sequence[seq - 1].1.iter().all(|v| *v == 0.0);
+            let drawn_before = renderer.frames_drawn;
+            renderer
+                .render_moving(q, Some(speed), Facing::Mirror, seq as u64, &mut l, &mut r)
+                .unwrap();
+            fresh.last_drawn = None;
+            fresh
+                .render_moving(q, Some(speed), Facing::Mirror, seq as u64, &mut fl, &mut fr)
+                .unwrap();
+            assert!(
+                l == fl && r == fr,
+                "frame {seq} differs from one drawn anew"
+            );
+            let drew = renderer.frames_drawn > drawn_before;
+            assert_eq!(
+                drew, !still,
+                "frame {seq}: drawn anew {drew}, arm still {still}"
+            );
+            if still {
+                reused += 1;
+            } else {
+                redrawn += 1;
+            }
+        }
+        assert!(
+            reused >= 2 && redrawn >= 2,
+            "{reused} reused, {redrawn} drawn"
         );
     }
 }
