@@ -269,14 +269,12 @@ fn search_windows(
     let (width, height) = (image.cols(), image.rows());
     let mut found = Vec::new();
     let mut cut = Vec::new();
-    for (window, min_side, expected) in merged_windows(last, width, height, 1.0) {
-        found.extend(search_window(
-            detector, image, window, min_side, expected, &mut cut,
-        )?);
+    for window in merged_windows(last, width, height, 1.0) {
+        found.extend(search_window(detector, image, &window, &mut cut)?);
     }
     let mut still_cut = Vec::new();
-    for (window, min_side, expected) in merged_windows(&cut, width, height, 2.0) {
-        for m in search_window(detector, image, window, min_side, expected, &mut still_cut)? {
+    for window in merged_windows(&cut, width, height, 2.0) {
+        for m in search_window(detector, image, &window, &mut still_cut)? {
             if !found.iter().any(|f| same(f, &m)) {
                 found.push(m);
             }
@@ -285,37 +283,48 @@ fn search_windows(
     Ok(found)
 }
 
+/// A part of the image searched for markers seen there last.
+struct Window {
+    rect: Rect,
+    /// The smallest side searched for: half the smallest of its markers'
+    /// (none shrinks by half in a frame).
+    min_side: f64,
+    /// How many markers it was made for.
+    markers: usize,
+}
+
 /// The windows around `markers` (see [`window_around`], with the growth
-/// times `grow`), overlapping ones merged, each with the smallest side
-/// searched for in it: half the smallest of its markers' (none shrinks by
-/// half in a frame), and how many markers it was made for.
-fn merged_windows(
-    markers: &[Marker],
-    width: i32,
-    height: i32,
-    grow: f64,
-) -> Vec<(Rect, f64, usize)> {
-    let mut windows: Vec<(Rect, f64, usize)> = Vec::new();
+/// times `grow`), overlapping ones merged.
+fn merged_windows(markers: &[Marker], width: i32, height: i32, grow: f64) -> Vec<Window> {
+    let mut windows: Vec<Window> = Vec::new();
     for m in markers {
-        let (mut window, mut min_side, mut count) =
-            (window_around(m, width, height, grow), 0.5 * shortest(m), 1);
-        while let Some(j) = windows.iter().position(|w| (w.0 & window).area() > 0) {
-            let (other, other_side, other_count) = windows.swap_remove(j);
-            window |= other;
-            min_side = min_side.min(other_side);
-            count += other_count;
+        let mut window = Window {
+            rect: window_around(m, width, height, grow),
+            min_side: 0.5 * shortest(m),
+            markers: 1,
+        };
+        while let Some(j) = windows
+            .iter()
+            .position(|w| (w.rect & window.rect).area() > 0)
+        {
+            let other = windows.swap_remove(j);
+            window.rect |= other.rect;
+            window.min_side = window.min_side.min(other.min_side);
+            window.markers += other.markers;
         }
-        windows.push((window, min_side, count));
+        windows.push(window);
     }
     windows
 }
 
-/// The one adaptive-threshold window for markers of at least `min_side`
-/// (half the smallest marker's side): about one and a half cells of the
-/// smallest marker, odd, within OpenCV's default scales (3 to 23 px).
-fn threshold_scale(min_side: f64) -> i32 {
-    let cell = 2.0 * min_side / 6.0;
-    ((1.5 * cell).round() as i32 | 1).clamp(3, 23)
+impl Window {
+    /// The one adaptive-threshold scale for its markers: about one and a
+    /// half cells of the smallest it looks for, odd, within OpenCV's
+    /// default scales (3 to 23 px).
+    fn threshold_scale(&self) -> i32 {
+        let cell = 2.0 * self.min_side / 6.0;
+        ((1.5 * cell).round() as i32 | 1).clamp(3, 23)
+    }
 }
 
 /// The markers of one window, in image pixels; those its edge cuts go to
@@ -323,24 +332,22 @@ fn threshold_scale(min_side: f64) -> i32 {
 fn search_window(
     detector: &mut Detector,
     image: &(impl MatTraitConst + opencv::core::ToInputArray),
-    window: Rect,
-    min_side: f64,
-    expected: usize,
+    window: &Window,
     cut: &mut Vec<Marker>,
 ) -> Result<Vec<Marker>> {
     let (width, height) = (image.cols(), image.rows());
-    let view = Mat::roi(image, window)?;
+    let view = Mat::roi(image, window.rect)?;
     // One threshold scale suited to the markers' size first; all of the
     // detector's scales when that does not find as many as were there.
     let mut markers =
-        detector.detect_at_least_at_scale(&view, min_side, threshold_scale(min_side))?;
-    if markers.len() < expected {
-        markers = detector.detect_at_least(&view, min_side)?;
+        detector.detect_at_least_at_scale(&view, window.min_side, window.threshold_scale())?;
+    if markers.len() < window.markers {
+        markers = detector.detect_at_least(&view, window.min_side)?;
     }
     let mut found = Vec::new();
     for mut m in markers {
-        let clear = clear_of_edges(&m, window, width, height);
-        let (dx, dy) = (f64::from(window.x), f64::from(window.y));
+        let clear = clear_of_edges(&m, window.rect, width, height);
+        let (dx, dy) = (f64::from(window.rect.x), f64::from(window.rect.y));
         for k in 0..4 {
             m.corners[2 * k] += dx;
             m.corners[2 * k + 1] += dy;
