@@ -1337,23 +1337,7 @@ mod tests {
     /// for byte, as one drawn from nothing.
     #[test]
     fn a_still_arm_is_drawn_once_and_every_frame_is_what_drawing_it_anew_gives() {
-        let data = generate(
-            &nico_scene(),
-            0,
-            &nico_noise(),
-            Counts {
-                train: 2,
-                test: 0,
-                direct: 0,
-            },
-            3,
-        )
-        .unwrap();
-        let poses: Vec<Vec<f64>> = data
-            .train
-            .iter()
-            .map(|s| s.joints.clone().unwrap())
-            .collect();
+        let poses = geometry::sim::nico_train_poses(0, 2, 3).unwrap();
         let sequence = geometry::sim::sweep(&poses, 2, 3, 30.0);
         let world = SimWorld::nico(0).unwrap();
         let mut renderer = Renderer::new(world.clone()).unwrap();

@@ -20,8 +20,8 @@ use camera_proc::render::RenderTruth;
 use camera_proc::render::Renderer;
 use cpu_time::ProcessTime;
 use criterion::{Criterion, criterion_group, criterion_main};
-use geometry::sim::{Counts, generate, nico_noise, nico_scene, sweep};
 use geometry::sim::{Facing, SimWorld};
+use geometry::sim::{nico_train_poses, sweep};
 use messages::{Encoding, FrameHeader, Marker, StereoDetections};
 use opencv::core::Mat;
 use opencv::prelude::*;
@@ -31,22 +31,7 @@ use tracker_proc::{Detector, StockPass, Tracked, Tracker, diagonal_intersection}
 
 /// The training poses the frames go through.
 fn poses() -> Vec<Vec<f64>> {
-    let data = generate(
-        &nico_scene(),
-        0,
-        &nico_noise(),
-        Counts {
-            train: 20,
-            test: 0,
-            direct: 0,
-        },
-        4,
-    )
-    .unwrap();
-    data.train
-        .iter()
-        .map(|s| s.joints.clone().unwrap())
-        .collect()
+    nico_train_poses(0, 20, 4).unwrap()
 }
 
 /// The arm going through the poses, one entry per frame: joint values and speeds.

@@ -240,23 +240,7 @@ fn the_tracker_step_reads_frames_in_place_and_counts_what_it_refuses() {
 fn region_tracking_finds_what_full_scans_find() {
     use messages::{Encoding, FrameHeader};
     use tracker_proc::{Tracked, Tracker};
-    let data = generate(
-        &nico_scene(),
-        0,
-        &nico_noise(),
-        Counts {
-            train: 6,
-            test: 0,
-            direct: 0,
-        },
-        5,
-    )
-    .unwrap();
-    let poses: Vec<Vec<f64>> = data
-        .train
-        .iter()
-        .map(|s| s.joints.clone().unwrap())
-        .collect();
+    let poses = geometry::sim::nico_train_poses(0, 6, 5).unwrap();
     let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
     let mut tracker = Tracker::new(true).unwrap();
     let mut full = Detector::new(true).unwrap();

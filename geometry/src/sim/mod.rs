@@ -269,6 +269,29 @@ fn nico_noise_shaped(pixel_sigma: f64, offset_scale: f64, dof: usize) -> NoiseMo
     }
 }
 
+/// The joint values of `count` training poses for mirror `mirror_index`
+/// of the `nico` scene (seeded): poses to drive the simulated arm
+/// through, for tests and benchmarks of what the cameras see.
+pub fn nico_train_poses(
+    mirror_index: usize,
+    count: usize,
+    seed: u64,
+) -> Result<Vec<Vec<f64>>, GeometryError> {
+    let counts = Counts {
+        train: count,
+        test: 0,
+        direct: 0,
+    };
+    let data = generate(&nico_scene(), mirror_index, &nico_noise(), counts, seed)?;
+    data.train
+        .into_iter()
+        .map(|s| {
+            s.joints
+                .ok_or_else(|| GeometryError::Degenerate("a training pose without joints".into()))
+        })
+        .collect()
+}
+
 /// The arm's frames going through `poses` as a camera at `fps` sees it:
 /// from each pose to the next in `move_frames` frames at constant joint
 /// speed, then still for `dwell_frames`. Per frame: joint values and joint
