@@ -116,6 +116,8 @@ impl Patch {
 /// gradient.
 struct Band {
     points: Vec<(Vector2<f64>, f64)>,
+    /// The direction in which brightness rises across the edge.
+    outward: Vector2<f64>,
 }
 
 impl Band {
@@ -208,11 +210,11 @@ impl Band {
             let u = f64::from(u0 + k as i32) + delta;
             points.push((point(f64::from(s), u), g1 * g1));
         }
-        (points.len() >= 3).then_some(Self { points })
+        (points.len() >= 3).then_some(Self { points, outward })
     }
 
     /// The weighted total-least-squares line, its normal pointing outward.
-    fn line(&self, outward: Vector2<f64>) -> Option<Line> {
+    fn line(&self) -> Option<Line> {
         let sum_w: f64 = self.points.iter().map(|(_, w)| w).sum();
         if sum_w <= 0.0 {
             return None;
@@ -231,7 +233,7 @@ impl Band {
         let eig = cov.symmetric_eigen();
         let k = usize::from(eig.eigenvalues[0] >= eig.eigenvalues[1]);
         let mut normal = eig.eigenvectors.column(k).into_owned();
-        if normal.dot(&outward) < 0.0 {
+        if normal.dot(&self.outward) < 0.0 {
             normal = -normal;
         }
         Some(Line {
@@ -301,7 +303,7 @@ fn edge_lines(
         };
         let (first, second) = about.map_or((edge, edge), |l| l[k]);
         let fit = |span: (f64, f64), about: Line| -> Option<Line> {
-            Band::collect(grey, (a, b), span, about, half_width)?.line(about.normal)
+            Band::collect(grey, (a, b), span, about, half_width)?.line()
         };
         lines[k] = if halves {
             (
