@@ -117,6 +117,16 @@ fn main() -> Result<()> {
             },
         ),
         (
+            "  ours, no pattern check (misfit)",
+            Options {
+                checks: Checks {
+                    max_misfit: f64::INFINITY,
+                    ..ours.checks
+                },
+                ..ours
+            },
+        ),
+        (
             "  ours, threshold windows 3 and 23 px",
             Options {
                 threshold_windows: ThresholdWindows {

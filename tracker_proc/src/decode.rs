@@ -43,7 +43,7 @@ const OPENCV_CELL_PX: i32 = 4;
 const OPENCV_BORDER_ERRORS: u32 = 7;
 
 /// A 4x4 code, row-major, `true` for a white cell.
-type Bits = [bool; 16];
+pub type Bits = [bool; 16];
 
 /// Rotates a code 90 degrees clockwise.
 fn rotate(b: &Bits) -> Bits {
@@ -183,6 +183,11 @@ pub struct Checks {
     /// Smallest lead of the best code over the next code or rotation (sum of
     /// the cells' signed levels, each in contrast units).
     pub min_gap: f64,
+    /// Largest [`crate::pattern::misfit`] of a read marker from its code,
+    /// on its final corners. On the real set printed markers reach 0.135
+    /// and the fragile-glass pictogram read as id 17 lies at 0.17 to 0.18;
+    /// on rendered frames (motion blur, noise) markers stay under 0.11.
+    pub max_misfit: f64,
 }
 
 impl Default for Checks {
@@ -194,6 +199,7 @@ impl Default for Checks {
             min_side: 6.0,
             min_margin: 0.05,
             min_gap: 0.5,
+            max_misfit: 0.155,
         }
     }
 }
@@ -383,6 +389,16 @@ impl CodeBook {
             decoys,
             larger: larger_families()?,
         })
+    }
+
+    /// The code of `id`, mirror-reversed with `mirrored`, upright: as a
+    /// [`Decoded`] marker's cells lie once its corners are turned by its
+    /// rotation.
+    pub fn code(&self, id: u32, mirrored: bool) -> Option<Bits> {
+        self.entries
+            .iter()
+            .find(|e| e.id == id && e.mirrored == mirrored)
+            .map(|e| e.rotations[0])
     }
 
     /// Ids whose mirror image is a rotation of the code: found either way,
@@ -699,7 +715,7 @@ fn opencv_cells(
 
 /// The candidate warped to an `n` x `n` square whose corners land at
 /// `corners.0` and `corners.1` on both axes.
-fn warp_square(
+pub(crate) fn warp_square(
     image: &impl core::ToInputArray,
     quad: &[Point2f; 4],
     (lo, hi): (f32, f32),

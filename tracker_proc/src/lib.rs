@@ -5,7 +5,9 @@
 //! candidate quadrilaterals; we read each against the 50 codes and their
 //! mirror images ([`decode`]), so one pass per image finds both kinds and
 //! says which, and place the corners on lines fitted to the marker's outer
-//! edges ([`refine`]). Four codes are their own mirror images turned
+//! edges ([`refine`]). A read marker must look like its code's grid of
+//! uniform cells ([`pattern`]), not a pictogram that lands on a code. Four
+//! codes are their own mirror images turned
 //! ([`Detector::mirror_symmetric_ids`]): found either way, reported as
 //! printed. The centre is the intersection of the diagonals. Each choice is
 //! measured on real photographs by the `real_set` example ([`real_set`]).
@@ -20,6 +22,7 @@
 //! ```
 
 pub mod decode;
+pub mod pattern;
 pub mod real_set;
 pub mod refine;
 pub mod regions;
@@ -359,6 +362,12 @@ impl Detector {
                 }
                 Refine::Subpix => subpix(grey, &quad)?,
             };
+            // A pictogram that lands on a code fills its cells unevenly.
+            if let Some(code) = self.book.code(d.id, d.mirrored)
+                && pattern::misfit(grey, &quad, &code)? > self.options.checks.max_misfit
+            {
+                continue;
+            }
             let c: Vec<[f64; 2]> = quad
                 .iter()
                 .map(|p| [f64::from(p.x), f64::from(p.y)])

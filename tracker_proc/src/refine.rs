@@ -25,8 +25,6 @@ use opencv::prelude::*;
 /// neighbouring edge's gradient).
 const END_MARGIN: f64 = 0.15;
 
-/// How far beyond a candidate's edge the first look reaches, px.
-const MAX_WIDE: f64 = 8.0;
 /// Edges longer than this are fitted by halves, px.
 const SPLIT_EDGES_OVER_PX: f64 = 80.0;
 /// Narrow looks about the last fit.
@@ -248,19 +246,21 @@ impl Band {
 /// fifth of the shortest side).
 pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Option<[Point2f; 4]> {
     let c: [Vector2<f64>; 4] = corners.map(|p| Vector2::new(f64::from(p.x), f64::from(p.y)));
-    // The widest look is MAX_WIDE px beyond an edge, plus the Sobel window.
-    let grey = Patch::around(image, &c, MAX_WIDE + 3.0)?;
     let shortest = (0..4)
         .map(|k| (c[(k + 1) % 4] - c[k]).norm())
         .fold(f64::INFINITY, f64::min);
     // A long edge, which the lens bends, is fitted by halves.
     let halves = shortest > SPLIT_EDGES_OVER_PX;
     // A wide look about the candidate's edges (its corners are whole
-    // pixels), then narrow ones about the last fits, each over the edges
-    // between the last fit's corners: what the corners settle on does not
-    // depend on the candidate's polygon.
-    let wide = (0.12 * shortest).clamp(2.5, MAX_WIDE);
+    // pixels, and on a blurred marker its polygon lies inside the edges by
+    // up to a twentieth of its side), then narrow ones about the last fits,
+    // each over the edges between the last fit's corners: what the corners
+    // settle on does not depend on the candidate's polygon.
+    let wide = (0.12 * shortest).max(2.5);
     let narrow = (0.5 * wide).max(2.0);
+    // The narrow looks' reach beyond an edge that a wide look moved, plus
+    // the Sobel window.
+    let grey = Patch::around(image, &c, wide + narrow + 3.0)?;
     let mut lines = edge_lines(&grey, &c, None, halves, wide)?;
     for _ in 0..NARROW_PASSES {
         let fitted = corners_of(&lines)?;

@@ -137,10 +137,12 @@ fn finds_what_opencv5_finds_and_more_with_a_quarter_of_its_centre_error() {
         "false markers: {:?}",
         s.false_markers
     );
-    // On this set: the fragile-glass pictogram in all seven variants (OpenCV 5
-    // reports it too) and a dark patch of the Eurobot mat with a white dot.
+    // On this set: the fragile-glass pictogram where blur or half scale leave
+    // too little of its shape to tell it from a code (the pattern check
+    // refuses it in the four sharp variants; OpenCV 5 reports it in six),
+    // and a dark patch of the Eurobot mat with a white dot, blurred.
     assert!(
-        s.false_markers.len() <= 8,
+        s.false_markers.len() <= 4,
         "{} false markers",
         s.false_markers.len()
     );
