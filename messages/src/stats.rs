@@ -44,6 +44,64 @@ pub struct CpuSummary {
     pub wall_ms: f64,
     /// `process_ms / wall_ms`: the share of one core the process used.
     pub core_share: f64,
+    /// How the kernel scheduled the process (absent in summaries of older
+    /// builds, or where `/proc` does not say).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scheduling: Option<Scheduling>,
+}
+
+/// A process's scheduling policy, as `/proc/self/stat` gives it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Scheduling {
+    /// `normal`, `fifo`, `rr`, `batch`, `idle` or `deadline`.
+    pub policy: String,
+    /// Real-time priority (1 to 99) under `fifo` and `rr`, else 0.
+    pub rt_priority: u32,
+    /// Niceness (-20 to 19).
+    pub nice: i32,
+}
+
+impl Scheduling {
+    /// This process's (its main thread's).
+    pub fn of_this_process() -> Option<Self> {
+        Self::parse(&std::fs::read_to_string("/proc/self/stat").ok()?)
+    }
+
+    /// From the text of `/proc/PID/stat`: fields 19 (nice), 40 (rt_priority)
+    /// and 41 (policy), counted after the command name, which may hold
+    /// spaces and parentheses.
+    fn parse(stat: &str) -> Option<Self> {
+        let fields: Vec<&str> = stat
+            .get(stat.rfind(')')? + 1..)?
+            .split_whitespace()
+            .collect();
+        // fields[0] is field 3 (the state).
+        let field = |n: usize| fields.get(n - 3).copied();
+        let policy = match field(41)?.parse::<u32>().ok()? {
+            0 => "normal",
+            1 => "fifo",
+            2 => "rr",
+            3 => "batch",
+            5 => "idle",
+            6 => "deadline",
+            _ => return None,
+        };
+        Some(Self {
+            policy: policy.into(),
+            rt_priority: field(40)?.parse().ok()?,
+            nice: field(19)?.parse().ok()?,
+        })
+    }
+}
+
+impl std::fmt::Display for Scheduling {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.policy.as_str() {
+            "fifo" | "rr" => write!(f, "{} {}", self.policy, self.rt_priority),
+            _ if self.nice != 0 => write!(f, "{} nice {}", self.policy, self.nice),
+            _ => f.write_str(&self.policy),
+        }
+    }
 }
 
 /// What one stage process measured.
@@ -156,6 +214,7 @@ impl StageStats {
                 } else {
                     0.0
                 },
+                scheduling: Scheduling::of_this_process(),
             }),
         }
     }
@@ -273,5 +332,26 @@ mod tests {
         assert!(cpu.process_ms >= 5.0 * 5.0, "{cpu:?}");
         // (Other tests of this process may run beside it: no upper bound.)
         assert!(cpu.wall_ms >= 250.0 && cpu.core_share > 0.0, "{cpu:?}");
+    }
+
+    #[test]
+    fn scheduling_is_read_from_proc_stat_whatever_the_command_name() {
+        // A command name with a space and a parenthesis, FIFO 10, nice 0.
+        let stat = "4242 (tracker (x) y) S 1 4242 4242 0 -1 4194560 100 0 0 0 5 1 0 0 \
+                    -11 0 3 0 12345 1000000 200 18446744073709551615 1 1 0 0 0 0 0 0 0 0 0 0 17 1 \
+                    10 1 0 0 0";
+        let s = Scheduling::parse(stat).unwrap();
+        assert_eq!((s.policy.as_str(), s.rt_priority, s.nice), ("fifo", 10, 0));
+        assert_eq!(s.to_string(), "fifo 10");
+        let niced = stat
+            .replace(" 0 3 0 12345", " 10 3 0 12345")
+            .replace(" 10 1 0 0 0", " 0 0 0 0 0");
+        let s = Scheduling::parse(&niced).unwrap();
+        assert_eq!((s.policy.as_str(), s.nice), ("normal", 10));
+        assert_eq!(s.to_string(), "normal nice 10");
+        // This process: readable, and a test runs at normal or batch policy.
+        let own = Scheduling::of_this_process().unwrap();
+        assert!(["normal", "batch", "fifo", "rr", "idle"].contains(&own.policy.as_str()));
+        assert!(Scheduling::parse("garbage").is_none());
     }
 }

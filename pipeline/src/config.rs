@@ -92,12 +92,25 @@ pub struct Config {
     /// where the tracker runs and how frames cross.
     #[serde(default)]
     pub split: SplitConfig,
+    /// `SCHED_FIFO` priority (1 to 99) of the stages every sample waits for
+    /// ([`crate::stages::StageArgs::on_sample_path`]) in a live run; 0: the
+    /// launcher's own scheduling. Needs root, `CAP_SYS_NICE` or an rtprio limit
+    /// (`ulimit -r`); without, the launcher says so and runs them normally.
+    #[serde(default = "default_realtime_priority")]
+    pub realtime_priority: u8,
 }
 
 /// `sim_arm`'s joint-position rate unless the config says: that of a
 /// typical arm controller's state stream (125 Hz to 1 kHz).
 fn default_arm_rate_hz() -> f64 {
     250.0
+}
+
+/// Real-time priority unless the config says: above the kernel's threaded
+/// interrupts' default of 50 would starve them; low in the range is enough
+/// to run before every normally scheduled process.
+fn default_realtime_priority() -> u8 {
+    10
 }
 
 /// What the command line may override.
@@ -112,6 +125,8 @@ pub struct Overrides {
     /// Camera frame rate, Hz.
     pub fps: Option<f64>,
     pub arm_driver: Option<String>,
+    /// Real-time priority of the stages between frame and sample.
+    pub realtime_priority: Option<u8>,
 }
 
 impl Config {
@@ -128,12 +143,14 @@ impl Config {
             method,
             fps,
             arm_driver,
+            realtime_priority,
         } = overrides;
         config.mirrors = mirrors.unwrap_or(config.mirrors);
         config.train_poses = train_poses.unwrap_or(config.train_poses);
         config.method = method.unwrap_or(config.method);
         config.fps = fps.unwrap_or(config.fps);
         config.arm_driver = arm_driver.or(config.arm_driver);
+        config.realtime_priority = realtime_priority.unwrap_or(config.realtime_priority);
         if let Some(command) = &config.arm_driver {
             let words = shell_words::split(command)
                 .map_err(|e| anyhow::anyhow!("arm_driver: {command:?}: {e}"))?;
@@ -171,6 +188,13 @@ impl Config {
                 "{}: key arm_rate_hz: {} is not in (0, 1000]",
                 path.display(),
                 config.arm_rate_hz
+            );
+        }
+        if config.realtime_priority > 99 {
+            bail!(
+                "{}: key realtime_priority: {} is not in 0 to 99",
+                path.display(),
+                config.realtime_priority
             );
         }
         Ok(config)
@@ -211,6 +235,15 @@ mod tests {
         )
         .unwrap();
         assert_eq!((config.mirrors, config.method), (vec![1], Method::Paper));
+        let config = load(
+            &format!("{GOOD}realtime_priority = 20\n"),
+            Overrides {
+                realtime_priority: Some(0),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(config.realtime_priority, 0, "the command line wins");
     }
 
     #[test]
@@ -243,6 +276,17 @@ mod tests {
         assert!(e.ends_with("key arm_rate_hz: 0 is not in (0, 1000]"), "{e}");
         let config = load(GOOD, Overrides::default()).unwrap();
         assert_eq!(config.arm_rate_hz, 250.0, "the default");
+        assert_eq!(config.realtime_priority, 10, "the default");
+        let e = load(
+            &format!("{GOOD}realtime_priority = 100\n"),
+            Overrides::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.ends_with("key realtime_priority: 100 is not in 0 to 99"),
+            "{e}"
+        );
         assert_eq!(
             config.split.tracker,
             crate::split::Side::Robot,

@@ -16,6 +16,7 @@ mod config;
 mod replay;
 mod report;
 mod run;
+mod scheduling;
 mod split;
 mod stages;
 mod supervise;
@@ -61,6 +62,12 @@ struct Args {
     /// E.g. "target/pyenv/bin/python python/examples/sim_arm.py".
     #[arg(long)]
     arm_driver: Option<String>,
+    /// SCHED_FIFO priority (1-99) of the stages every sample waits for
+    /// (camera, arm driver, tracker, kinematics, mirror; the bridge in a
+    /// split run); 0: normal scheduling (overrides the config's
+    /// `realtime_priority`, default 10).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=99))]
+    realtime_priority: Option<u8>,
     /// Service prefix (default: unique per run).
     #[arg(long)]
     prefix: Option<String>,
@@ -174,6 +181,7 @@ fn run(args: Args) -> Result<()> {
         method: args.method,
         fps: args.fps,
         arm_driver: args.arm_driver,
+        realtime_priority: args.realtime_priority,
     };
     let config_path = replay
         .as_ref()
@@ -187,8 +195,14 @@ fn run(args: Args) -> Result<()> {
     let flag = stop.clone();
     ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
         .context("installing the Ctrl-C handler")?;
+    // A replay paces itself: only a live run's stages race the clock.
+    let realtime = match replay {
+        Some(_) => None,
+        None => scheduling::realtime(config.realtime_priority),
+    };
     let run = Run {
         config,
+        realtime,
         config_path,
         out: args.out.clone(),
         bin_dir,
@@ -216,8 +230,12 @@ fn run(args: Args) -> Result<()> {
             .collect::<Result<Vec<_>>>()?,
     };
     let path = args.out.join("report.json");
-    let json =
-        serde_json::json!({ "config": run.config, "paper": PAPER_FIGURES, "placements": results });
+    let json = serde_json::json!({
+        "config": run.config,
+        "realtime_priority": run.realtime,
+        "paper": PAPER_FIGURES,
+        "placements": results,
+    });
     let text = serde_json::to_string_pretty(&json)? + "\n";
     std::fs::write(&path, &text).with_context(|| format!("{}: cannot write", path.display()))?;
     if args.report == ReportFormat::Json {

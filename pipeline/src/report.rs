@@ -135,11 +135,12 @@ pub fn latency_table(results: &[PlacementResult]) -> String {
 pub fn cpu_table(results: &[PlacementResult]) -> String {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut s = format!(
-        "\nCPU per stage: thread CPU per step, ms; process CPU as a share of one core ({cores} cores)\n"
+        "\nCPU per stage: thread CPU per step, ms; process CPU as a share of one core ({cores} cores); \
+         how the kernel scheduled it\n"
     );
     s += &format!(
-        "  {:<10} {:<16} {:>7} {:>8} {:>8} {:>11}\n",
-        "placement", "stage", "steps", "median", "p99", "core share"
+        "  {:<10} {:<16} {:>7} {:>8} {:>8} {:>11}  {}\n",
+        "placement", "stage", "steps", "median", "p99", "core share", "scheduling"
     );
     for r in results {
         let mut total = 0.0;
@@ -156,14 +157,19 @@ pub fn cpu_table(results: &[PlacementResult]) -> String {
                 },
             );
             total += cpu.core_share;
+            let scheduling = cpu
+                .scheduling
+                .as_ref()
+                .map_or("-".to_string(), ToString::to_string);
             s += &format!(
-                "  {:<10} {:<16} {:>7} {:>8} {:>8} {:>9.1} %\n",
+                "  {:<10} {:<16} {:>7} {:>8} {:>8} {:>9.1} %  {}\n",
                 format!("mirror {}", r.mirror),
                 stage.stage,
                 steps,
                 median,
                 p99,
-                100.0 * cpu.core_share
+                100.0 * cpu.core_share,
+                scheduling
             );
         }
         s += &format!(

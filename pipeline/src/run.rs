@@ -33,6 +33,9 @@ const OTHER_SIDE_WITHIN: Duration = Duration::from_secs(600);
 pub struct Run {
     /// The run's settings.
     pub config: Config,
+    /// `SCHED_FIFO` priority of the stages between frame and sample, when
+    /// the config asks and the system allows ([`crate::scheduling`]).
+    pub realtime: Option<u8>,
     /// The config file (attached to recordings).
     pub config_path: PathBuf,
     /// Output directory.
@@ -131,12 +134,15 @@ impl Run {
         // within this run resumes from them; a new run starts new ones.
         let journal = dir.join("journal.mcap");
         let arm_journal = dir.join("arm_journal.mcap");
-        let launch = Launch::in_dir(
-            &self.bin_dir,
-            format!("{}_m{mirror}", self.prefix),
-            &dir,
-            self.trace,
-        );
+        let launch = Launch {
+            realtime: self.realtime,
+            ..Launch::in_dir(
+                &self.bin_dir,
+                format!("{}_m{mirror}", self.prefix),
+                &dir,
+                self.trace,
+            )
+        };
         for stale in [&report_path, &journal, &arm_journal]
             .into_iter()
             .chain(launch.outputs())

@@ -144,6 +144,26 @@ impl StageArgs {
         }
     }
 
+    /// Whether every sample waits for the stage: the camera (a frame's
+    /// stamp is its capture), the tracker, the arm driver and the
+    /// kinematics (a frame is paired once a joint state stamped after it
+    /// has come), the mirror stage, and in a split run the bridge that
+    /// carries frames and detections between hosts. These may run at
+    /// real-time priority
+    /// ([`crate::config::Config::realtime_priority`]); the recorder, which no
+    /// sample waits for, gives way to them.
+    pub fn on_sample_path(&self) -> bool {
+        matches!(
+            self,
+            StageArgs::Camera { .. }
+                | StageArgs::ArmDriver { .. }
+                | StageArgs::Tracker
+                | StageArgs::Kinematics { .. }
+                | StageArgs::Mirror { .. }
+                | StageArgs::Bridge(_)
+        )
+    }
+
     /// The topics the stage subscribes to (its binary's contract).
     pub fn subscribes(&self) -> &[TopicId] {
         match self {

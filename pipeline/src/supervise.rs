@@ -24,6 +24,9 @@ pub struct Launch {
     pub trace_dir: Option<PathBuf>,
     /// Where the stages write their timing (`MIRROR_STATS_DIR`).
     pub stats_dir: PathBuf,
+    /// `SCHED_FIFO` priority for the stages between frame and sample
+    /// ([`StageArgs::on_sample_path`]); `None`: the launcher's scheduling.
+    pub realtime: Option<u8>,
 }
 
 impl Launch {
@@ -36,6 +39,7 @@ impl Launch {
             log: dir.join("stages.log"),
             trace_dir: trace.then(|| dir.join("trace")),
             stats_dir: dir.join("stats"),
+            realtime: None,
         }
     }
 
@@ -59,10 +63,18 @@ impl Launch {
         }
         command.env(messages::stats::STATS_DIR_ENV, &self.stats_dir);
         let niceness = stage.niceness();
-        // SAFETY: prctl(2) and setpriority(2) only, between fork and exec.
-        // The stages are told to stop (SIGTERM, so the recorder finishes its
-        // file) if the launcher dies; a stage off the frame-to-sample path
-        // runs at a lower priority.
+        let realtime = self
+            .realtime
+            .filter(|_| stage.on_sample_path())
+            .map(|priority| libc::sched_param {
+                sched_priority: i32::from(priority),
+            });
+        // SAFETY: prctl(2), setpriority(2) and sched_setscheduler(2) only,
+        // between fork and exec. The stages are told to stop (SIGTERM, so the
+        // recorder finishes its file) if the launcher dies; a stage off the
+        // frame-to-sample path runs at a lower priority, one on it (when the
+        // run asks and the launcher found it allowed) before every normally
+        // scheduled process, its threads too (they inherit the policy).
         #[allow(unsafe_code)]
         unsafe {
             command.pre_exec(move || {
@@ -70,6 +82,11 @@ impl Launch {
                     return Err(std::io::Error::last_os_error());
                 }
                 if niceness != 0 && libc::setpriority(libc::PRIO_PROCESS, 0, niceness) == -1 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                if let Some(param) = &realtime
+                    && libc::sched_setscheduler(0, libc::SCHED_FIFO, param) == -1
+                {
                     return Err(std::io::Error::last_os_error());
                 }
                 Ok(())

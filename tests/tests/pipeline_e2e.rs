@@ -210,11 +210,27 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
         serde_json::from_str(&std::fs::read_to_string(live_run().out.join("report.json")).unwrap())
             .unwrap();
     let stages = report["placements"][0]["stages"].as_array().unwrap();
+    // The stages between frame and sample at the real-time priority the
+    // launcher found allowed (none: normal), the recorder niced, the rest
+    // as the launcher.
+    let realtime = report["realtime_priority"].as_u64();
     for stage in stages {
         let cpu = &stage["cpu"];
         let share = cpu["core_share"].as_f64().unwrap();
         assert!(share > 0.0 && share < 1.5, "{stage}");
         let name = stage["stage"].as_str().unwrap();
+        let scheduling = &cpu["scheduling"];
+        let on_path = ["tracker_proc", "kinematics_proc", "mirror_proc"].contains(&name);
+        match realtime {
+            Some(priority) if on_path => {
+                assert_eq!(scheduling["policy"], "fifo", "{name}: {scheduling}");
+                assert_eq!(scheduling["rt_priority"], priority, "{name}: {scheduling}");
+            }
+            _ => assert_ne!(scheduling["policy"], "fifo", "{name}: {scheduling}"),
+        }
+        if name == "recorder" {
+            assert_eq!(scheduling["nice"], 10, "{scheduling}");
+        }
         if [
             "camera_proc",
             "tracker_proc",
