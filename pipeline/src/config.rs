@@ -92,8 +92,9 @@ pub struct Config {
     /// where the tracker runs and how frames cross.
     #[serde(default)]
     pub split: SplitConfig,
-    /// `SCHED_FIFO` priority (1 to 99) of the stages every sample waits for
-    /// ([`crate::stages::StageArgs::on_sample_path`]) in a live run; 0: the
+    /// Base `SCHED_FIFO` priority (1 to 97) of the stages every sample
+    /// waits for in a live run, each
+    /// [`crate::stages::StageArgs::sample_path_depth`] above it; 0: the
     /// launcher's own scheduling. Needs root, `CAP_SYS_NICE` or an rtprio limit
     /// (`ulimit -r`); without, the launcher says so and runs them normally.
     #[serde(default = "default_realtime_priority")]
@@ -190,9 +191,9 @@ impl Config {
                 config.arm_rate_hz
             );
         }
-        if config.realtime_priority > 99 {
+        if config.realtime_priority > 97 {
             bail!(
-                "{}: key realtime_priority: {} is not in 0 to 99",
+                "{}: key realtime_priority: {} is not in 0 to 97",
                 path.display(),
                 config.realtime_priority
             );
@@ -284,7 +285,7 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(
-            e.ends_with("key realtime_priority: 100 is not in 0 to 99"),
+            e.ends_with("key realtime_priority: 100 is not in 0 to 97"),
             "{e}"
         );
         assert_eq!(

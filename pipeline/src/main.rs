@@ -62,11 +62,11 @@ struct Args {
     /// E.g. "target/pyenv/bin/python python/examples/sim_arm.py".
     #[arg(long)]
     arm_driver: Option<String>,
-    /// SCHED_FIFO priority (1-99) of the stages every sample waits for
-    /// (camera, arm driver, tracker, kinematics, mirror; the bridge in a
-    /// split run); 0: normal scheduling (overrides the config's
-    /// `realtime_priority`, default 10).
-    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=99))]
+    /// Base SCHED_FIFO priority (1-97) of the stages every sample waits for:
+    /// the camera and arm driver at it, the tracker, kinematics (and bridge)
+    /// one above, the mirror stage two above; 0: normal scheduling
+    /// (overrides the config's `realtime_priority`, default 10).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=97))]
     realtime_priority: Option<u8>,
     /// Service prefix (default: unique per run).
     #[arg(long)]

@@ -10,13 +10,14 @@
 //! the rest of the CPU (and the kernel keeps 5% of each second for them
 //! whatever happens).
 
-/// The priority to give the stages on the sample's path: `priority` when it
-/// is not 0 and this process may set it, else `None`, saying why on stderr.
+/// The base priority of the stages on the sample's path: `priority` when it
+/// is not 0 and this process may set it (and two above, for the stages
+/// further down the path), else `None`, saying why on stderr.
 pub fn realtime(priority: u8) -> Option<u8> {
     if priority == 0 {
         return None;
     }
-    match permitted(priority) {
+    match permitted(priority.saturating_add(2)) {
         Ok(()) => Some(priority),
         Err(e) => {
             eprintln!(

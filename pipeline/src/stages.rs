@@ -144,24 +144,23 @@ impl StageArgs {
         }
     }
 
-    /// Whether every sample waits for the stage: the camera (a frame's
-    /// stamp is its capture), the tracker, the arm driver and the
-    /// kinematics (a frame is paired once a joint state stamped after it
-    /// has come), the mirror stage, and in a split run the bridge that
-    /// carries frames and detections between hosts. These may run at
-    /// real-time priority
-    /// ([`crate::config::Config::realtime_priority`]); the recorder, which no
-    /// sample waits for, gives way to them.
-    pub fn on_sample_path(&self) -> bool {
-        matches!(
-            self,
-            StageArgs::Camera { .. }
-                | StageArgs::ArmDriver { .. }
-                | StageArgs::Tracker
-                | StageArgs::Kinematics { .. }
-                | StageArgs::Mirror { .. }
-                | StageArgs::Bridge(_)
-        )
+    /// For a stage every sample waits for, how far down the path from
+    /// camera to sample it sits: the camera and the arm driver 0 (a frame's
+    /// stamp is its capture; a frame is paired once a joint state stamped
+    /// after it has come), the tracker, the kinematics and (in a split run)
+    /// the bridge 1, the mirror stage 2. At real-time priority
+    /// ([`crate::config::Config::realtime_priority`]) each runs that much
+    /// above the base, so that a frame further along is never kept waiting
+    /// by one behind it: the mirror stage pairs a frame's detections while
+    /// the tracker's periodic full scan of that frame goes on. `None`: no
+    /// sample waits for it (the recorder, a replay).
+    pub fn sample_path_depth(&self) -> Option<u8> {
+        match self {
+            StageArgs::Camera { .. } | StageArgs::ArmDriver { .. } => Some(0),
+            StageArgs::Tracker | StageArgs::Kinematics { .. } | StageArgs::Bridge(_) => Some(1),
+            StageArgs::Mirror { .. } => Some(2),
+            StageArgs::Recorder { .. } | StageArgs::Replay { .. } => None,
+        }
     }
 
     /// The topics the stage subscribes to (its binary's contract).

@@ -24,8 +24,9 @@ pub struct Launch {
     pub trace_dir: Option<PathBuf>,
     /// Where the stages write their timing (`MIRROR_STATS_DIR`).
     pub stats_dir: PathBuf,
-    /// `SCHED_FIFO` priority for the stages between frame and sample
-    /// ([`StageArgs::on_sample_path`]); `None`: the launcher's scheduling.
+    /// Base `SCHED_FIFO` priority for the stages every sample waits for
+    /// (each runs its [`StageArgs::sample_path_depth`] above it); `None`: the
+    /// launcher's scheduling.
     pub realtime: Option<u8>,
 }
 
@@ -65,9 +66,9 @@ impl Launch {
         let niceness = stage.niceness();
         let realtime = self
             .realtime
-            .filter(|_| stage.on_sample_path())
-            .map(|priority| libc::sched_param {
-                sched_priority: i32::from(priority),
+            .zip(stage.sample_path_depth())
+            .map(|(base, depth)| libc::sched_param {
+                sched_priority: i32::from(base) + i32::from(depth),
             });
         // SAFETY: prctl(2), setpriority(2) and sched_setscheduler(2) only,
         // between fork and exec. The stages are told to stop (SIGTERM, so the

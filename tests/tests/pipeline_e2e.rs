@@ -210,9 +210,9 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
         serde_json::from_str(&std::fs::read_to_string(live_run().out.join("report.json")).unwrap())
             .unwrap();
     let stages = report["placements"][0]["stages"].as_array().unwrap();
-    // The stages between frame and sample at the real-time priority the
-    // launcher found allowed (none: normal), the recorder niced, the rest
-    // as the launcher.
+    // The stages every sample waits for at the real-time priority the
+    // launcher found allowed (none: normal), further down the path from
+    // camera to sample higher; the recorder niced.
     let realtime = report["realtime_priority"].as_u64();
     for stage in stages {
         let cpu = &stage["cpu"];
@@ -220,11 +220,20 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
         assert!(share > 0.0 && share < 1.5, "{stage}");
         let name = stage["stage"].as_str().unwrap();
         let scheduling = &cpu["scheduling"];
-        let on_path = ["tracker_proc", "kinematics_proc", "mirror_proc"].contains(&name);
-        match realtime {
-            Some(priority) if on_path => {
+        let depth = match name {
+            "camera_proc" | "sim_arm" => Some(0),
+            "tracker_proc" | "kinematics_proc" => Some(1),
+            "mirror_proc" => Some(2),
+            _ => None,
+        };
+        match (realtime, depth) {
+            (Some(base), Some(depth)) => {
                 assert_eq!(scheduling["policy"], "fifo", "{name}: {scheduling}");
-                assert_eq!(scheduling["rt_priority"], priority, "{name}: {scheduling}");
+                assert_eq!(
+                    scheduling["rt_priority"],
+                    base + depth,
+                    "{name}: {scheduling}"
+                );
             }
             _ => assert_ne!(scheduling["policy"], "fifo", "{name}: {scheduling}"),
         }
