@@ -1,14 +1,16 @@
 //! Whether the stages every sample waits for may run at real-time
 //! priority.
 //!
-//! On two cores the recorder's compression shares the CPU with the
-//! stages between frame and sample; at normal priority (even with the
-//! recorder niced) a frame now and then waits behind it, and the
-//! frame-to-sample tail grows to tens of milliseconds. `SCHED_FIFO` runs
-//! the stages on the sample's path before every normally scheduled process
-//! whenever they have work; they block between frames, so the others keep
-//! the rest of the CPU (and the kernel keeps 5% of each second for them
-//! whatever happens).
+//! On two cores the recorder's compression, the camera's moving frames and
+//! the tracker's periodic full scans share the CPU with the stages a frame
+//! goes through; at normal priority (even with the recorder niced) a frame
+//! now and then waits behind them, and the frame-to-sample tail grows to
+//! tens of milliseconds. `SCHED_FIFO` runs the stages on the sample's path
+//! before every normally scheduled process whenever they have work, each
+//! further down the path above the ones before it (see
+//! [`crate::stages::StageArgs::sample_path_depth`]); they block between
+//! frames, so the others keep the rest of the CPU (and the kernel keeps 5%
+//! of each second for them whatever happens).
 
 /// The base priority of the stages on the sample's path: `priority` when it
 /// is not 0 and this process may set it (and two above, for the stages
@@ -17,39 +19,19 @@ pub fn realtime(priority: u8) -> Option<u8> {
     if priority == 0 {
         return None;
     }
-    match permitted(priority.saturating_add(2)) {
+    let highest = priority.saturating_add(2);
+    match permitted(highest) {
         Ok(()) => Some(priority),
         Err(e) => {
             eprintln!(
-                "pipeline: warning: real-time priority {priority} not allowed ({e}): the stages \
-                 every sample waits for run at normal priority, and the frame-to-sample latency \
-                 has a longer tail on a busy machine (allow it with root, CAP_SYS_NICE or \
-                 `ulimit -r {priority}`; or set realtime_priority = 0)"
+                "pipeline: warning: real-time priorities {priority}-{highest} not allowed ({e}): the \
+                 stages every sample waits for run at normal priority, and the frame-to-sample \
+                 latency has a longer tail on a busy machine (allow them with root, CAP_SYS_NICE \
+                 or `ulimit -r {highest}`; or set realtime_priority = 0)"
             );
             None
         }
     }
-}
-
-/// Tries `SCHED_FIFO` at `priority` on a thread of its own, which then ends:
-/// the launcher's own threads keep their scheduling.
-fn permitted(priority: u8) -> std::io::Result<()> {
-    std::thread::spawn(move || {
-        let param = libc::sched_param {
-            sched_priority: i32::from(priority),
-        };
-        // SAFETY: sched_setscheduler(2) on the calling thread (pid 0) with a
-        // valid parameter; the thread ends right after.
-        #[allow(unsafe_code)]
-        let result = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-        if result == -1 {
-            Err(std::io::Error::last_os_error())
-        } else {
-            Ok(())
-        }
-    })
-    .join()
-    .unwrap_or_else(|_| Err(std::io::Error::other("the probe thread panicked")))
 }
 
 #[cfg(test)]
@@ -57,10 +39,23 @@ mod tests {
     use super::*;
 
     #[test]
-    fn zero_asks_for_nothing_and_an_allowed_priority_is_given() {
-        assert_eq!(realtime(0), None);
-        // Whether this machine allows it decides the answer, not the test:
-        // the answer must agree with what the system says.
-        assert_eq!(realtime(10).is_some(), permitted(10).is_ok());
+    fn the_probe_leaves_the_launchers_own_scheduling_alone() {
+        assert_eq!(realtime(0), None, "0 asks for nothing");
+        // The policy (field 41 of the thread's stat) before and after.
+        let policy = || {
+            let stat = std::fs::read_to_string("/proc/thread-self/stat").unwrap();
+            let after_name = &stat[stat.rfind(')').unwrap() + 1..];
+            after_name
+                .split_whitespace()
+                .nth(41 - 3)
+                .unwrap()
+                .to_string()
+        };
+        let before = policy();
+        let given = realtime(10);
+        assert_eq!(policy(), before, "the probe changed the caller's policy");
+        // What it answers is what the system allows for the highest of the
+        // three priorities.
+        assert_eq!(given.is_some(), permitted(12).is_ok());
     }
 }
