@@ -713,9 +713,28 @@ fn opencv_cells(
     Ok(Some((white, contrast)))
 }
 
+/// The candidate warped to a square of 6x6 cells of `cell_px` pixels,
+/// bilinearly, its corners on the square's outer pixel edges so that each
+/// cell spans whole pixels.
+pub(crate) fn warp_cells(
+    image: &impl core::ToInputArray,
+    quad: &[Point2f; 4],
+    cell_px: i32,
+) -> Result<Mat> {
+    let n = CELLS as i32 * cell_px;
+    warp_square(
+        image,
+        quad,
+        (-0.5, n as f32 - 0.5),
+        n,
+        imgproc::INTER_LINEAR,
+        core::BORDER_REPLICATE,
+    )
+}
+
 /// The candidate warped to an `n` x `n` square whose corners land at
 /// `corners.0` and `corners.1` on both axes.
-pub(crate) fn warp_square(
+fn warp_square(
     image: &impl core::ToInputArray,
     quad: &[Point2f; 4],
     (lo, hi): (f32, f32),
@@ -762,15 +781,7 @@ type Cells = [f64; CELLS * CELLS];
 /// averages the inside of each cell.
 fn rectify(image: &impl core::ToInputArray, quad: &[Point2f; 4]) -> Result<Cells> {
     let n = CELLS as i32 * CELL_PX;
-    // Corners at pixel edges, so that each cell spans whole pixels.
-    let warped = warp_square(
-        image,
-        quad,
-        (-0.5, n as f32 - 0.5),
-        n,
-        imgproc::INTER_LINEAR,
-        core::BORDER_REPLICATE,
-    )?;
+    let warped = warp_cells(image, quad, CELL_PX)?;
     let mut sums = [0u32; CELLS * CELLS];
     let mut counts = [0u32; CELLS * CELLS];
     let keep = CELL_MARGIN_PX..CELL_PX - CELL_MARGIN_PX;

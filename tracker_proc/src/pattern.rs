@@ -15,10 +15,9 @@ use anyhow::Result;
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use opencv::core::{self, Point2f};
-use opencv::imgproc;
 use opencv::prelude::*;
 
-use crate::decode::{Bits, warp_square};
+use crate::decode::{Bits, warp_cells};
 
 /// Cells per side: 4 code cells and a black border cell each side.
 const CELLS: usize = 6;
@@ -36,15 +35,7 @@ const SIDE: usize = CELLS * CELL_PX;
 /// more where the cells are not uniform. Counted from half a border cell
 /// in, so that the surroundings reach it only through the blur.
 pub fn misfit(image: &impl core::ToInputArray, quad: &[Point2f; 4], code: &Bits) -> Result<f64> {
-    let n = SIDE as i32;
-    let warped = warp_square(
-        image,
-        quad,
-        (-0.5, n as f32 - 0.5),
-        n,
-        imgproc::INTER_LINEAR,
-        core::BORDER_REPLICATE,
-    )?;
+    let warped = warp_cells(image, quad, CELL_PX as i32)?;
     let pixels = warped.data_bytes()?;
     let white = cells(code);
     let y = Square::from_fn(|r, c| f64::from(pixels[(r + INSIDE) * SIDE + c + INSIDE]));
@@ -149,6 +140,7 @@ mod tests {
     use crate::{Checks, CodeBook, Correction, Detector};
     use opencv::aruco;
     use opencv::core::{Mat, Point, Rect, Scalar, Size};
+    use opencv::imgproc;
 
     /// A white page with `DICT_4X4_50` marker `id` of `side` px at `at`.
     fn page_with_marker(id: i32, side: i32, at: (i32, i32)) -> Mat {
