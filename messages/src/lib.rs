@@ -22,6 +22,7 @@
 mod any_port;
 mod bus;
 pub mod journal;
+pub mod realtime;
 pub mod stats;
 pub mod topics;
 pub mod trace;

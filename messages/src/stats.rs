@@ -62,7 +62,8 @@ pub struct Scheduling {
 }
 
 impl Scheduling {
-    /// This process's (its main thread's).
+    /// This process's (its main thread's: for the recorder, the thread that
+    /// takes messages out of shared memory).
     pub fn of_this_process() -> Option<Self> {
         Self::parse(&std::fs::read_to_string("/proc/self/stat").ok()?)
     }
@@ -96,11 +97,14 @@ impl Scheduling {
 
 impl std::fmt::Display for Scheduling {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self.policy.as_str() {
-            "fifo" | "rr" => write!(f, "{} {}", self.policy, self.rt_priority),
-            _ if self.nice != 0 => write!(f, "{} nice {}", self.policy, self.nice),
-            _ => f.write_str(&self.policy),
+        f.write_str(&self.policy)?;
+        if matches!(self.policy.as_str(), "fifo" | "rr") {
+            write!(f, " {}", self.rt_priority)?;
         }
+        if self.nice != 0 {
+            write!(f, " nice {}", self.nice)?;
+        }
+        Ok(())
     }
 }
 

@@ -37,22 +37,9 @@ pub fn realtime(priority: u8) -> Option<u8> {
 /// Tries `SCHED_FIFO` at `priority` on a thread of its own, which then ends:
 /// the launcher's own threads keep their scheduling.
 fn permitted(priority: u8) -> std::io::Result<()> {
-    std::thread::spawn(move || {
-        let param = libc::sched_param {
-            sched_priority: i32::from(priority),
-        };
-        // SAFETY: sched_setscheduler(2) on the calling thread (pid 0) with a
-        // valid parameter; the thread ends right after.
-        #[allow(unsafe_code)]
-        let result = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-        if result == -1 {
-            Err(std::io::Error::last_os_error())
-        } else {
-            Ok(())
-        }
-    })
-    .join()
-    .unwrap_or_else(|_| Err(std::io::Error::other("the probe thread panicked")))
+    std::thread::spawn(move || messages::realtime::fifo_this_thread(priority))
+        .join()
+        .unwrap_or_else(|_| Err(std::io::Error::other("the probe thread panicked")))
 }
 
 #[cfg(test)]

@@ -93,6 +93,12 @@ impl Launch {
                 Ok(())
             });
         }
+        // A live recorder takes messages out of shared memory on a thread at
+        // the base priority, so that the stages above it cannot starve it of
+        // frames; it compresses and writes at its niceness.
+        if let (Some(base), StageArgs::Recorder { no_drop: false, .. }) = (self.realtime, stage) {
+            command.args(["--realtime-priority".to_string(), base.to_string()]);
+        }
         command
             .args(stage.argv(&self.prefix))
             .stdout(Stdio::null())

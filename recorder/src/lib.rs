@@ -49,6 +49,13 @@ pub struct RecordOptions {
     /// Drop frames (counted) when the writer falls behind, instead of
     /// waiting for it (which holds up the camera only on lossless buses).
     pub drop_frames: bool,
+    /// `SCHED_FIFO` priority of the thread that takes messages out of
+    /// shared memory; `None`: the process's scheduling. Stages at real-time
+    /// priority can keep a normally scheduled recorder off both cores for
+    /// longer than a subscriber holds frames (4); the copying is cheap, and
+    /// compressing and writing stay on the writer thread at the process's
+    /// priority, with the frame queue to take up their delay.
+    pub realtime_priority: Option<u8>,
 }
 
 /// Records pipeline `prefix` into `path` until SIGINT/SIGTERM, then takes
@@ -80,6 +87,16 @@ pub fn record(
         options.drop_frames,
     )?;
     tracing::info!(prefix, path = %path.display(), "recording");
+    // Only now: the writer (and live view) threads started above keep the
+    // process's scheduling.
+    if let Some(priority) = options.realtime_priority
+        && let Err(e) = messages::realtime::fifo_this_thread(priority)
+    {
+        tracing::warn!(
+            priority,
+            "receiving at normal priority: real-time priority not allowed ({e})"
+        );
+    }
     let captured = bus.wake()?.run(
         &capture.listeners(),
         Some(Duration::from_millis(250)),

@@ -51,6 +51,12 @@ struct Args {
     /// Also serve the viewing channels live to Foxglove over WebSocket on this port of localhost.
     #[arg(long)]
     live_view: Option<u16>,
+    /// SCHED_FIFO priority (1-99) of the thread that takes messages out of
+    /// shared memory, when the stages publishing them run at real-time
+    /// priority (the launcher passes its base priority); compression and
+    /// writing keep the process's priority.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
+    realtime_priority: Option<u8>,
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -90,6 +96,7 @@ fn run(args: Args) -> Result<()> {
         rig,
         live_view: args.live_view.map(|p| ("127.0.0.1".to_string(), p)),
         drop_frames: !args.no_drop,
+        realtime_priority: args.realtime_priority,
     };
     let summary = record(&args.prefix, &args.out, options)?;
     summary.write_stats();

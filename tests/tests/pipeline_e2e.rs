@@ -212,7 +212,8 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
     let stages = report["placements"][0]["stages"].as_array().unwrap();
     // The stages every sample waits for at the real-time priority the
     // launcher found allowed (none: normal), further down the path from
-    // camera to sample higher; the recorder niced.
+    // camera to sample higher; the recorder niced, its receiving (main)
+    // thread at the base priority.
     let realtime = report["realtime_priority"].as_u64();
     for stage in stages {
         let cpu = &stage["cpu"];
@@ -221,7 +222,7 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
         let name = stage["stage"].as_str().unwrap();
         let scheduling = &cpu["scheduling"];
         let depth = match name {
-            "camera_proc" | "sim_arm" => Some(0),
+            "camera_proc" | "sim_arm" | "recorder" => Some(0),
             "tracker_proc" | "kinematics_proc" => Some(1),
             "mirror_proc" => Some(2),
             _ => None,
