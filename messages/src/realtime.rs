@@ -24,15 +24,8 @@ pub fn fifo_this_thread(priority: u8) -> std::io::Result<()> {
 mod tests {
     use super::*;
 
-    /// The calling thread's policy, field 41 of its `stat`.
     fn policy() -> String {
-        let stat = std::fs::read_to_string("/proc/thread-self/stat").unwrap();
-        let after_name = &stat[stat.rfind(')').unwrap() + 1..];
-        after_name
-            .split_whitespace()
-            .nth(41 - 3)
-            .unwrap()
-            .to_string()
+        crate::stats::Scheduling::of_this_thread().unwrap().policy
     }
 
     #[test]
@@ -45,8 +38,7 @@ mod tests {
         .join()
         .unwrap();
         match result {
-            // SCHED_FIFO is policy 1.
-            Ok(()) => assert_eq!(inside, "1"),
+            Ok(()) => assert_eq!(inside, "fifo"),
             Err(e) => assert_eq!(e.raw_os_error(), Some(libc::EPERM), "{e}"),
         }
         assert_eq!(policy(), before, "another thread's call changed this one");

@@ -68,6 +68,11 @@ impl Scheduling {
         Self::parse(&std::fs::read_to_string("/proc/self/stat").ok()?)
     }
 
+    /// The calling thread's.
+    pub fn of_this_thread() -> Option<Self> {
+        Self::parse(&std::fs::read_to_string("/proc/thread-self/stat").ok()?)
+    }
+
     /// From the text of `/proc/PID/stat`: fields 19 (nice), 40 (rt_priority)
     /// and 41 (policy), counted after the command name, which may hold
     /// spaces and parentheses.

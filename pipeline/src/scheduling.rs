@@ -49,15 +49,10 @@ mod tests {
     #[test]
     fn the_probe_leaves_the_launchers_own_scheduling_alone() {
         assert_eq!(realtime(0), None, "0 asks for nothing");
-        // The policy (field 41 of the thread's stat) before and after.
         let policy = || {
-            let stat = std::fs::read_to_string("/proc/thread-self/stat").unwrap();
-            let after_name = &stat[stat.rfind(')').unwrap() + 1..];
-            after_name
-                .split_whitespace()
-                .nth(41 - 3)
+            messages::stats::Scheduling::of_this_thread()
                 .unwrap()
-                .to_string()
+                .policy
         };
         let before = policy();
         let given = realtime(10);
