@@ -33,7 +33,7 @@ const OTHER_SIDE_WITHIN: Duration = Duration::from_secs(600);
 pub struct Run {
     /// The run's settings.
     pub config: Config,
-    /// `SCHED_FIFO` priority of the stages between frame and sample, when
+    /// Base `SCHED_FIFO` priority of the stages every sample waits for, when
     /// the config asks and the system allows ([`crate::scheduling`]).
     pub realtime: Option<u8>,
     /// The config file (attached to recordings).
