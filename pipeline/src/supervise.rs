@@ -67,9 +67,7 @@ impl Launch {
         let realtime = self
             .realtime
             .zip(stage.sample_path_depth())
-            .map(|(base, depth)| libc::sched_param {
-                sched_priority: i32::from(base) + i32::from(depth),
-            });
+            .map(|(base, depth)| base + depth);
         // SAFETY: prctl(2), setpriority(2) and sched_setscheduler(2) only,
         // between fork and exec. The stages are told to stop (SIGTERM, so the
         // recorder finishes its file) if the launcher dies; a stage off the
@@ -85,10 +83,9 @@ impl Launch {
                 if niceness != 0 && libc::setpriority(libc::PRIO_PROCESS, 0, niceness) == -1 {
                     return Err(std::io::Error::last_os_error());
                 }
-                if let Some(param) = &realtime
-                    && libc::sched_setscheduler(0, libc::SCHED_FIFO, param) == -1
-                {
-                    return Err(std::io::Error::last_os_error());
+                // The child has one thread: this puts the whole process there.
+                if let Some(priority) = realtime {
+                    messages::realtime::fifo_this_thread(priority)?;
                 }
                 Ok(())
             });

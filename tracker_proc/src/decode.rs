@@ -23,7 +23,7 @@ use opencv::imgproc;
 use opencv::prelude::*;
 
 /// Cells per side: 4 code cells and a black border cell each side.
-const CELLS: usize = 6;
+pub(crate) const CELLS: usize = 6;
 /// Pixels per cell in the rectified candidate.
 const CELL_PX: i32 = 6;
 /// Pixels of each cell's edge left out when averaging (perspective and blur

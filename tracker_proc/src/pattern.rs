@@ -17,10 +17,8 @@ use nalgebra::{Matrix3, SMatrix, Vector3};
 use opencv::core::{self, Point2f};
 use opencv::prelude::*;
 
-use crate::decode::{Bits, warp_cells};
+use crate::decode::{Bits, CELLS, warp_cells};
 
-/// Cells per side: 4 code cells and a black border cell each side.
-const CELLS: usize = 6;
 /// Pixels per cell of the rectified marker.
 const CELL_PX: usize = 4;
 /// Blurs tried, as the Gaussian's sigma in cells: from none to a marker
