@@ -67,7 +67,7 @@ pub struct Options {
 }
 
 /// The default of [`Options::lease_ms`]: zenoh's own.
-pub const DEFAULT_LEASE_MS: u64 = 10_000;
+pub use stages::bridge::DEFAULT_LEASE_MS;
 
 impl Options {
     /// Refuses what cannot work: a topic both sent and received would come
@@ -540,7 +540,10 @@ fn send(
     counters: &Counters,
     stops: &[&AtomicBool],
 ) -> Result<()> {
-    let bus = Bus::new(&options.prefix, "bridge_send")?;
+    let bus = Bus::new(&options.prefix, "bridge_send")?.declared(messages::Ports {
+        subscribes: &options.send,
+        publishes: &[],
+    });
     let mut publishers = Vec::new();
     for &topic in &options.send {
         let (congestion, priority) = if topic.carries_frames() {
@@ -763,7 +766,10 @@ fn receive(
     clocks: &Clocks<'_>,
     stops: &[&AtomicBool],
 ) -> Result<()> {
-    let bus = Bus::new(&options.prefix, "bridge_receive")?;
+    let bus = Bus::new(&options.prefix, "bridge_receive")?.declared(messages::Ports {
+        subscribes: &[],
+        publishes: &options.receive,
+    });
     // Publishers made as their topics' first messages come (a frame
     // publisher is sized by its first frame).
     let mut publishers: Vec<Option<AnyPublisher>> = (0..TopicId::COUNT).map(|_| None).collect();

@@ -19,7 +19,8 @@ fn main() -> anyhow::Result<()> {
         4,
     )?;
     for look in LookName::ALL {
-        let mut renderer = Renderer::with_look(SimWorld::nico(0)?, look.look())?;
+        let mut renderer =
+            Renderer::with_look(SimWorld::nico(0)?, camera_proc::look::Look::named(look))?;
         let t = Instant::now();
         let mut n = 0;
         for round in 0..5 {

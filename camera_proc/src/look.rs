@@ -8,58 +8,7 @@
 //! and noise: the renderer of earlier versions) and `sharp` (`clean`
 //! without blur or noise, for tests of the detector's geometry).
 
-use std::fmt;
-
-/// A named preset of [`Look`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
-pub enum LookName {
-    /// A room, the mirror's frame, the robot; a real camera's blur and noise.
-    #[default]
-    Realistic,
-    /// Cards on a flat grey field with light blur and noise.
-    Clean,
-    /// Cards on a flat grey field, no blur, no noise.
-    Sharp,
-}
-
-impl LookName {
-    /// Every preset, in the order of the help text.
-    pub const ALL: [LookName; 3] = [LookName::Realistic, LookName::Clean, LookName::Sharp];
-
-    /// The preset's parameters.
-    pub fn look(self) -> Look {
-        match self {
-            LookName::Realistic => Look::realistic(),
-            LookName::Clean => Look::clean(),
-            LookName::Sharp => Look::sharp(),
-        }
-    }
-
-    /// The name as written in configs and on the command line.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            LookName::Realistic => "realistic",
-            LookName::Clean => "clean",
-            LookName::Sharp => "sharp",
-        }
-    }
-}
-
-impl fmt::Display for LookName {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl std::str::FromStr for LookName {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        LookName::ALL
-            .into_iter()
-            .find(|l| l.as_str() == s)
-            .ok_or_else(|| format!("unknown look {s:?} (realistic, clean, sharp)"))
-    }
-}
+pub use stages::camera::LookName;
 
 /// The simulated camera's image model. Grey levels are the sensor's digital
 /// numbers (DN, 0-255).
@@ -107,6 +56,15 @@ pub struct Look {
 }
 
 impl Look {
+    /// The preset `name`'s parameters.
+    pub fn named(name: LookName) -> Self {
+        match name {
+            LookName::Realistic => Look::realistic(),
+            LookName::Clean => Look::clean(),
+            LookName::Sharp => Look::sharp(),
+        }
+    }
+
     /// Cards on a flat grey field, light blur and noise (the earlier renderer).
     pub fn clean() -> Self {
         Self {
@@ -227,7 +185,7 @@ mod tests {
     #[test]
     fn presets_are_valid_and_named_both_ways() {
         for name in LookName::ALL {
-            name.look().validate().unwrap();
+            Look::named(name).validate().unwrap();
             assert_eq!(name.as_str().parse::<LookName>().unwrap(), name);
         }
         assert!("glossy".parse::<LookName>().is_err());

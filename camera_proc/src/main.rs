@@ -21,28 +21,7 @@ struct Args {
 #[derive(Debug, Subcommand)]
 enum Source {
     /// Render what the simulated head sees, following the arm's joint states.
-    Sim {
-        /// Service prefix of the pipeline.
-        #[arg(long, default_value = "default")]
-        prefix: String,
-        /// Mirror placement of the Nico scene (0, 1, 2).
-        #[arg(long, default_value_t = 0)]
-        mirror: usize,
-        /// Frame rate, Hz.
-        #[arg(long, default_value_t = 30.0)]
-        fps: f64,
-        /// Frames to keep rendering after the pose plan is done.
-        #[arg(long, default_value_t = 5)]
-        tail_frames: u32,
-        /// What the images look like: a room and a real camera's blur and
-        /// noise, or cards on a flat grey field.
-        #[arg(long, value_enum, default_value_t = LookName::Realistic)]
-        look: LookName,
-        /// Compress each image with JPEG at this quality (1-100), as a USB
-        /// camera's MJPEG stream does.
-        #[arg(long, value_name = "QUALITY", value_parser = clap::value_parser!(u8).range(1..=100))]
-        mjpeg: Option<u8>,
-    },
+    Sim(stages::camera::Args),
     /// Play a directory of image pairs (`*left*` / `*right*`).
     Files {
         /// Service prefix of the pipeline.
@@ -102,17 +81,17 @@ enum Source {
 
 fn main() -> ExitCode {
     messages::stage_main("camera_proc", || match Args::parse().source {
-        Source::Sim {
+        Source::Sim(stages::camera::Args {
             prefix,
             mirror,
             fps,
             tail_frames,
             look,
             mjpeg,
-        } => {
+        }) => {
             let look = camera_proc::look::Look {
                 jpeg_quality: mjpeg,
-                ..look.look()
+                ..camera_proc::look::Look::named(look)
             };
             stage::run_sim(&prefix, mirror, fps, tail_frames, look)
         }

@@ -25,7 +25,7 @@ pub fn snapshot(
     if q.len() != dof {
         bail!("--q: {} joint angles given, the arm has {dof}", q.len());
     }
-    let mut renderer = Renderer::with_look(world, look.look())?;
+    let mut renderer = Renderer::with_look(world, crate::look::Look::named(look))?;
     let n = (intr.width * intr.height) as usize;
     let (mut left, mut right) = (vec![0u8; n], vec![0u8; n]);
     let truth = renderer.render(q, facing, 0, &mut left, &mut right)?;

@@ -58,7 +58,7 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32, look: Lo
     let intr = world.rig.cameras[0].intrinsics;
     let dof = world.rig.arm.as_ref().map_or(0, |a| a.dof());
     let mut renderer = Renderer::with_look(world, look)?;
-    let bus = Bus::new(prefix, "camera_proc")?;
+    let bus = stages::bus_of::<stages::camera::Camera>(prefix)?;
     let frames = bus.frame_publisher::<topics::Frames>(2 * (intr.width * intr.height) as usize)?;
     let joints = bus.subscriber::<topics::JointPositions>()?;
     let goals = bus.subscriber::<topics::PoseGoal>()?;

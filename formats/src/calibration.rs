@@ -20,7 +20,9 @@
 //! }
 //! ```
 
+use std::fmt;
 use std::path::Path;
+use std::str::FromStr;
 
 use geometry::{Camera, Plane, Rig};
 use nalgebra::Vector3;
@@ -247,6 +249,57 @@ fn strip_position(message: &str) -> String {
 /// Writes a calibration file.
 pub fn write(path: impl AsRef<Path>, cal: &CalibrationFile) -> Result<(), FormatError> {
     write_text(path.as_ref(), &cal.to_json())
+}
+
+/// A calibration method. The discriminants are the wire and recording
+/// values (`CalibrationMsg::method`): never reorder them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[repr(u32)]
+pub enum Method {
+    /// The paper's per-camera method.
+    #[serde(rename = "paper")]
+    Paper = 0,
+    /// A shared mirror plane.
+    #[serde(rename = "joint")]
+    Joint = 1,
+    /// A shared mirror plane and per-joint encoder offsets.
+    #[serde(rename = "joint+kinematics")]
+    JointKinematics = 2,
+}
+
+geometry::try_from_u32!(Method);
+
+impl Method {
+    /// All methods, in the order reports list them.
+    pub const ALL: [Method; 3] = [Method::Paper, Method::Joint, Method::JointKinematics];
+
+    /// The method's name in files and on the command line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Method::Paper => "paper",
+            Method::Joint => "joint",
+            Method::JointKinematics => "joint+kinematics",
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Method {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.as_str() == s)
+            .ok_or_else(|| {
+                format!("unknown method `{s}` (expected paper, joint or joint+kinematics)")
+            })
+    }
 }
 
 #[cfg(test)]

@@ -3,7 +3,6 @@
 //! settled and held the pose, and publishes joint states with the
 //! end-effector model's position.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -12,48 +11,7 @@ use clap::Parser;
 use kinematics_proc::follow::SettleRule;
 use kinematics_proc::random_plan;
 use kinematics_proc::stage::DriveOptions;
-
-/// Run a pose plan through the arm driver and publish the arm's joint states.
-#[derive(Debug, Parser)]
-#[command(version, about)]
-struct Args {
-    /// Service prefix of the pipeline.
-    #[arg(long, default_value = "default")]
-    prefix: String,
-    /// Rig file (TOML) with the arm's model (DH table or URDF).
-    #[arg(long)]
-    rig: PathBuf,
-    /// Pose plan CSV (`pose,role,q0..`); or use --random.
-    #[arg(long, conflicts_with = "random")]
-    plan: Option<PathBuf>,
-    /// Random training poses within the joint limits, instead of a plan.
-    #[arg(long)]
-    random: Option<usize>,
-    /// Seed of --random.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Hold each settled pose this long before the next goal, ms.
-    #[arg(long, default_value_t = 300)]
-    dwell_ms: u64,
-    /// A pose has settled when every joint is within this of its goal (rad, or mm for a
-    /// prismatic joint)...
-    #[arg(long, default_value_t = 2e-3)]
-    settle_tolerance: f64,
-    /// ...and has stayed within half of it for this long, ms.
-    #[arg(long, default_value_t = 40)]
-    still_ms: u64,
-    /// Fail when the arm driver sends no usable joint positions for this long, ms.
-    #[arg(long, default_value_t = 3000)]
-    silent_ms: u64,
-    /// Wait until this many subscribers listen to the joint states (at most 30 s).
-    #[arg(long, default_value_t = 0)]
-    wait_subscribers: usize,
-    /// Journal each pose the arm settles at here (MCAP); if the file exists,
-    /// take up the plan after the last pose it holds (a restarted stage
-    /// repeats no pose). Give a new path for a new run.
-    #[arg(long)]
-    journal: Option<PathBuf>,
-}
+use stages::kinematics::Args;
 
 fn run(args: Args) -> Result<()> {
     let rig = formats::rig::read(&args.rig)?;

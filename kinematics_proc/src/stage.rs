@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use geometry::Arm;
 use messages::journal::Journal;
 use messages::topics::{self, Topic};
-use messages::{Bus, JointPositions, JointState, MAX_JOINTS, Phase, now_ns};
+use messages::{JointPositions, JointState, MAX_JOINTS, Phase, now_ns};
 
 use crate::PlannedPose;
 use crate::follow::{Follower, SettleRule};
@@ -95,7 +95,7 @@ pub fn drive(
     options: DriveOptions,
     mut journal: Option<Journal>,
 ) -> Result<u64> {
-    let bus = Bus::new(prefix, "kinematics_proc")?;
+    let bus = stages::bus_of::<stages::kinematics::Kinematics>(prefix)?;
     let states = bus.publisher::<topics::JointState>()?;
     let goals = bus.publisher::<topics::PoseGoal>()?;
     let positions = bus.subscriber::<topics::JointPositions>()?;
@@ -188,7 +188,7 @@ pub fn run_sim_arm(prefix: &str, home: Vec<f64>, move_ns: i64, tick: Duration) -
     if dof > MAX_JOINTS {
         bail!("the arm has {dof} joints; at most {MAX_JOINTS} are supported");
     }
-    let bus = Bus::new(prefix, "sim_arm")?;
+    let bus = stages::bus_of::<stages::sim_arm::SimArm>(prefix)?;
     let positions = bus.publisher::<topics::JointPositions>()?;
     let goals = bus.subscriber::<topics::PoseGoal>()?;
     let mut arm = SimArm::new(home, move_ns);

@@ -27,7 +27,7 @@ impl Republish for FramePublisher {
             return Err(wrong(TopicId::Frames, message));
         };
         if pixels.len() != 2 * header.image_len() {
-            return Err(BusError::new(format!(
+            return Err(BusError::WrongMessage(format!(
                 "a frame of {} bytes whose header says {}",
                 pixels.len(),
                 2 * header.image_len()
@@ -45,7 +45,7 @@ impl Republish for FramePublisher {
 }
 
 fn wrong(topic: TopicId, message: &Message<'_>) -> BusError {
-    BusError::new(format!(
+    BusError::WrongMessage(format!(
         "a message of {} given to the publisher of {}",
         message.topic().name(),
         topic.name()

@@ -14,28 +14,56 @@ use crate::{FrameHeader, now_ns};
 
 /// Buffer of each subscriber of small messages: deep enough that nothing is
 /// lost while a stage is busy for seconds (a calibration, a slow start).
-const SMALL_BUFFER: usize = 1024;
+pub const SMALL_BUFFER: usize = 1024;
 /// Buffer of each frame subscriber: old frames are overwritten, newest kept.
-const FRAME_BUFFER: usize = 4;
-const MAX_PORTS: usize = 16;
+pub const FRAME_BUFFER: usize = 4;
+/// Publishers, subscribers, notifiers and listeners a service takes at
+/// most (and twice as many nodes). Every process opening a service must
+/// give the same limits: iceoryx2 refuses a service opened with others.
+pub const MAX_PORTS: usize = 16;
 
-/// A failure of the shared-memory transport: what was being done, with
-/// iceoryx2's error as the source.
-#[derive(Debug, thiserror::Error)]
-#[error("{context}")]
-pub struct BusError {
-    context: String,
-    #[source]
-    source: Option<Box<dyn std::error::Error + Send + Sync>>,
+/// The iceoryx2 service of `topic` in pipeline `prefix`; its event service
+/// is this followed by [`EVENT_SUFFIX`].
+pub fn service_name(prefix: &str, topic: &str) -> String {
+    format!("mirror/{prefix}/{topic}")
 }
 
-impl BusError {
-    pub(crate) fn new(context: impl Into<String>) -> Self {
-        Self {
-            context: context.into(),
-            source: None,
-        }
-    }
+/// What follows a topic's service name to name its event service.
+pub const EVENT_SUFFIX: &str = "/event";
+
+/// A failure of the shared-memory bus, by kind, so callers can tell a
+/// transport failure (iceoryx2's error kept as the source) from a mistake
+/// of the caller's.
+#[derive(Debug, thiserror::Error)]
+pub enum BusError {
+    /// iceoryx2 failed doing `context`.
+    #[error("{context}")]
+    Transport {
+        /// What was being done.
+        context: String,
+        /// iceoryx2's error.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// The pipeline prefix cannot name services.
+    #[error("prefix `{0}` is empty or has spaces")]
+    BadPrefix(String),
+    /// A stage opened a port its declaration does not list.
+    #[error("{stage} opens a {direction} of `{topic}`, which its declaration does not list")]
+    Undeclared {
+        /// The stage (its node name).
+        stage: String,
+        /// `publisher` or `subscriber`.
+        direction: &'static str,
+        /// The topic's name.
+        topic: &'static str,
+    },
+    /// Waiting for subscribers was interrupted or timed out.
+    #[error("{0}")]
+    NoSubscribers(String),
+    /// A message or frame that does not fit the port it was given to.
+    #[error("{0}")]
+    WrongMessage(String),
 }
 
 /// Wraps an iceoryx2 error as the source of a [`BusError`] saying `context`.
@@ -43,10 +71,19 @@ fn err<E: std::error::Error + Send + Sync + 'static>(
     context: impl Into<String>,
 ) -> impl FnOnce(E) -> BusError {
     let context = context.into();
-    move |e| BusError {
+    move |e| BusError::Transport {
         context,
-        source: Some(Box::new(e)),
+        source: Box::new(e),
     }
+}
+
+/// The ports a stage declares: what it may publish and subscribe to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Ports<'a> {
+    /// Topics it subscribes to.
+    pub subscribes: &'a [TopicId],
+    /// Topics it publishes.
+    pub publishes: &'a [TopicId],
 }
 
 /// One process's connection to a pipeline: an iceoryx2 node and the prefix
@@ -54,16 +91,17 @@ fn err<E: std::error::Error + Send + Sync + 'static>(
 pub struct Bus {
     node: Node<ipc::Service>,
     prefix: String,
+    name: String,
     lossless: bool,
+    /// The stage's declared ports, if it declared them: any other port is refused.
+    declared: Option<(Vec<TopicId>, Vec<TopicId>)>,
 }
 
 impl Bus {
     /// Joins the pipeline `prefix` as node `name`.
     pub fn new(prefix: &str, name: &str) -> Result<Self, BusError> {
         if prefix.is_empty() || prefix.contains(char::is_whitespace) {
-            return Err(BusError::new(format!(
-                "prefix `{prefix}` is empty or has spaces"
-            )));
+            return Err(BusError::BadPrefix(prefix.to_string()));
         }
         // iceoryx2 warns that no config file exists; its defaults are what we use.
         set_log_level_from_env_or(LogLevel::Error);
@@ -82,7 +120,37 @@ impl Bus {
         Ok(Self {
             node,
             prefix: prefix.to_string(),
+            name: name.to_string(),
             lossless: false,
+            declared: None,
+        })
+    }
+
+    /// Restricts this bus to a stage's declared `ports`: opening any other
+    /// port is then a [`BusError::Undeclared`], so a stage's binary cannot
+    /// drift from the declaration the launcher reads.
+    pub fn declared(mut self, ports: Ports<'_>) -> Self {
+        self.declared = Some((ports.subscribes.to_vec(), ports.publishes.to_vec()));
+        self
+    }
+
+    /// Refuses a port the stage did not declare.
+    fn check_declared(&self, topic: TopicId, publishes: bool) -> Result<(), BusError> {
+        let Some((subscribes, publishes_list)) = &self.declared else {
+            return Ok(());
+        };
+        let list = if publishes {
+            publishes_list
+        } else {
+            subscribes
+        };
+        if list.contains(&topic) {
+            return Ok(());
+        }
+        Err(BusError::Undeclared {
+            stage: self.name.clone(),
+            direction: if publishes { "publisher" } else { "subscriber" },
+            topic: topic.name(),
         })
     }
 
@@ -110,13 +178,13 @@ impl Bus {
     }
 
     fn name(&self, topic: &str, suffix: &str) -> Result<ServiceName, BusError> {
-        let full = format!("mirror/{}/{topic}{suffix}", self.prefix);
+        let full = service_name(&self.prefix, topic) + suffix;
         ServiceName::new(&full).map_err(err(format!("service name {full}")))
     }
 
     fn event(&self, topic: &str) -> Result<PortFactoryEvent, BusError> {
         self.node
-            .service_builder(&self.name(topic, "/event")?)
+            .service_builder(&self.name(topic, EVENT_SUFFIX)?)
             .event()
             .max_notifiers(MAX_PORTS)
             .max_listeners(MAX_PORTS)
@@ -179,6 +247,7 @@ impl Bus {
 
     /// A publisher of topic `T`'s small fixed-size messages.
     pub fn publisher<T: SmallTopic>(&self) -> Result<Publisher<T>, BusError> {
+        self.check_declared(T::ID, true)?;
         let publisher = self
             .small_service::<T>()?
             .publisher_builder()
@@ -192,6 +261,7 @@ impl Bus {
 
     /// A subscriber of topic `T`'s small fixed-size messages.
     pub fn subscriber<T: SmallTopic>(&self) -> Result<Subscriber<T>, BusError> {
+        self.check_declared(T::ID, false)?;
         let subscriber = self
             .small_service::<T>()?
             .subscriber_builder()
@@ -209,6 +279,7 @@ impl Bus {
         &self,
         max_bytes: usize,
     ) -> Result<FramePublisher, BusError> {
+        self.check_declared(T::ID, true)?;
         let publisher = self
             .frame_service::<T>()?
             .publisher_builder()
@@ -225,6 +296,7 @@ impl Bus {
 
     /// A subscriber of stereo frames on topic `T`.
     pub fn frame_subscriber<T: FrameTopic>(&self) -> Result<FrameSubscriber, BusError> {
+        self.check_declared(T::ID, false)?;
         let subscriber = self
             .frame_service::<T>()?
             .subscriber_builder()
@@ -276,13 +348,13 @@ impl Bus {
                 return Ok(());
             }
             if stop() {
-                return Err(BusError::new(format!(
+                return Err(BusError::NoSubscribers(format!(
                     "interrupted while waiting for subscribers of `{}`",
                     topic.name()
                 )));
             }
             if began.elapsed() > timeout {
-                return Err(BusError::new(format!(
+                return Err(BusError::NoSubscribers(format!(
                     "topic `{}` has {now} subscribers after {:.0} s, waiting for {count}",
                     topic.name(),
                     timeout.as_secs_f64()
@@ -302,7 +374,10 @@ impl Bus {
         Ok(exists(
             &self.name(topic.name(), "")?,
             MessagingPattern::PublishSubscribe,
-        )? && exists(&self.name(topic.name(), "/event")?, MessagingPattern::Event)?)
+        )? && exists(
+            &self.name(topic.name(), EVENT_SUFFIX)?,
+            MessagingPattern::Event,
+        )?)
     }
 
     /// Opens (creating if needed) the services of every topic of the

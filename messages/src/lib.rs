@@ -30,8 +30,9 @@ mod types;
 
 pub use any_port::{AnyPublisher, AnySubscriber, Taken};
 pub use bus::{
-    Bus, BusError, FramePublisher, FrameSubscriber, OpenServices, Publisher, Subscriber, Wake,
-    remove_dead_nodes,
+    Bus, BusError, EVENT_SUFFIX, FRAME_BUFFER, FramePublisher, FrameSubscriber, MAX_PORTS,
+    OpenServices, Ports, Publisher, SMALL_BUFFER, Subscriber, Wake, remove_dead_nodes,
+    service_name,
 };
 pub use types::*;
 

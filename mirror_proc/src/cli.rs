@@ -83,32 +83,7 @@ enum Command {
     },
     /// The live stage: pair joint states with detections, calibrate as samples
     /// arrive, publish calibrations, predictions and located objects.
-    Run {
-        /// Service prefix of the pipeline.
-        #[arg(long, default_value = "default")]
-        prefix: String,
-        /// Rig file (TOML).
-        #[arg(long)]
-        rig: PathBuf,
-        /// paper | joint | joint+kinematics.
-        #[arg(long, default_value = "joint+kinematics")]
-        method: String,
-        /// Training samples before the first calibration.
-        #[arg(long, default_value_t = 8)]
-        min_train: usize,
-        /// Wait after a pose settles before pairing a frame with it, ms.
-        #[arg(long, default_value_t = 30)]
-        settle_ms: i64,
-        /// Write the final report (JSON) here when the pose plan ends.
-        #[arg(long)]
-        report: Option<PathBuf>,
-        /// Journal every paired sample and calibration here (MCAP) before
-        /// publishing it; if the file exists, resume from it first (a
-        /// restarted stage loses nothing it had collected). Give a new path
-        /// for a new calibration.
-        #[arg(long)]
-        journal: Option<PathBuf>,
-    },
+    Run(stages::mirror::Args),
     /// Write a calibration in standard forms: the mirror as transforms JSON
     /// and a Foxglove FrameTransforms snapshot, and the calibrated arm as a
     /// corrected URDF (or DH table) with its rig.
@@ -314,7 +289,7 @@ fn run(cli: Cli) -> Result<()> {
                 println!("wrote {}", path.display());
             }
         }
-        Command::Run {
+        Command::Run(stages::mirror::Args {
             prefix,
             rig,
             method,
@@ -322,10 +297,7 @@ fn run(cli: Cli) -> Result<()> {
             settle_ms,
             report,
             journal,
-        } => {
-            let method: Method = method
-                .parse()
-                .map_err(|e: String| anyhow!("--method: {e}"))?;
+        }) => {
             let rig_model = read_rig(&rig)?;
             let config = crate::live::LiveConfig {
                 method,

@@ -11,7 +11,7 @@ use geometry::Rig;
 use messages::journal::{Journal, Recovered};
 use messages::stats::StageStats;
 use messages::topics::{self, Topic};
-use messages::{Bus, Publisher, now_ns};
+use messages::{Publisher, now_ns};
 
 use crate::live::{Latency, Live, LiveConfig, LiveReport, Output};
 
@@ -133,7 +133,7 @@ pub fn run(
         }
         None => (None, Vec::new()),
     };
-    let bus = Bus::new(prefix, "mirror_proc")?;
+    let bus = stages::bus_of::<stages::mirror::Mirror>(prefix)?;
     let joints = bus.subscriber::<topics::JointState>()?;
     let detections = bus.subscriber::<topics::Detections>()?;
     let mut outputs = Outputs {

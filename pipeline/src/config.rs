@@ -25,28 +25,7 @@ pub enum Source {
 }
 
 /// What the simulated camera's images look like (`camera_proc sim --look`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Look {
-    /// A room, the mirror's frame, the robot; a real camera's blur and noise.
-    #[default]
-    Realistic,
-    /// Cards on a flat grey field, light blur and noise.
-    Clean,
-    /// Cards on a flat grey field, no blur, no noise.
-    Sharp,
-}
-
-impl Look {
-    /// The name `camera_proc` takes.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Look::Realistic => "realistic",
-            Look::Clean => "clean",
-            Look::Sharp => "sharp",
-        }
-    }
-}
+pub use stages::camera::LookName as Look;
 
 /// The run's settings.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -94,7 +73,7 @@ pub struct Config {
     pub split: SplitConfig,
     /// Base `SCHED_FIFO` priority (1 to 97) of the stages every sample
     /// waits for in a live run, each
-    /// [`crate::stages::StageArgs::sample_path_depth`] above it; 0: the
+    /// [`stages::StageArgs::sample_path_depth`] above it; 0: the
     /// launcher's own scheduling. Needs root, `CAP_SYS_NICE` or an rtprio limit
     /// (`ulimit -r`); without, the launcher says so and runs them normally.
     #[serde(default = "default_realtime_priority")]

@@ -18,7 +18,6 @@ mod report;
 mod run;
 mod scheduling;
 mod split;
-mod stages;
 mod supervise;
 
 use std::path::PathBuf;

@@ -18,9 +18,9 @@ use mirror_proc::live::LiveReport;
 
 use crate::config::Config;
 use crate::report::{PlacementResult, TruthErrors};
-use crate::split::{BridgeArgs, Link, Side, crossing, side_of};
-use crate::stages::{StageArgs, subscribers_of};
+use crate::split::{Link, Side, crossing, side_of};
 use crate::supervise::{Launch, Progress, Supervisor, see, wait_ready};
+use stages::{StageArgs, subscribers_of};
 
 /// How long the consumers may take to subscribe.
 const READY_WITHIN: Duration = Duration::from_secs(30);
@@ -157,53 +157,72 @@ impl Run {
 
         // The stage table: consumers first (the recorder first of all, so it
         // sees every message), then the arm once every consumer listens.
-        let mut consumers = Vec::new();
+        let prefix = &launch.prefix;
+        let mut consumers: Vec<StageArgs> = Vec::new();
         if self.record {
-            consumers.push(StageArgs::Recorder {
-                out: recording.clone(),
-                no_drop: false,
-                rig: rig.clone(),
-                attach: vec![plan_path.clone(), self.config_path.clone()],
-                meta: vec![
-                    ("mirror".into(), mirror.to_string()),
-                    ("method".into(), config.method.to_string()),
-                    ("fps".into(), config.fps.to_string()),
-                ],
-                live_view: self.live_view,
-            });
+            consumers.push(
+                stages::recorder::Args {
+                    prefix: prefix.clone(),
+                    out: recording.clone(),
+                    overwrite: true,
+                    rig: Some(rig.clone()),
+                    attach: vec![plan_path.clone(), self.config_path.clone()],
+                    meta: vec![
+                        ("mirror".into(), mirror.to_string()),
+                        ("method".into(), config.method.to_string()),
+                        ("fps".into(), config.fps.to_string()),
+                    ],
+                    live_view: self.live_view,
+                    ..Default::default()
+                }
+                .into(),
+            );
         }
         consumers.extend([
-            StageArgs::Mirror {
-                rig: rig.clone(),
+            stages::mirror::Args {
                 method: config.method,
                 min_train: config.min_train,
-                report: report_path.clone(),
-                journal,
-            },
-            StageArgs::Tracker,
-            StageArgs::Camera {
+                report: Some(report_path.clone()),
+                journal: Some(journal),
+                ..stages::mirror::Args::new(prefix, &rig)
+            }
+            .into(),
+            stages::tracker::Args {
+                prefix: prefix.clone(),
+                ..Default::default()
+            }
+            .into(),
+            stages::camera::Args {
+                prefix: prefix.clone(),
                 mirror,
                 fps: config.fps,
                 look: config.look,
-            },
-            StageArgs::ArmDriver {
-                rig: rig.clone(),
-                command: config
-                    .arm_driver
-                    .as_deref()
-                    .map(shell_words::split)
-                    .transpose()?,
-                move_ms: config.move_ms,
-                rate_hz: config.arm_rate_hz,
+                ..Default::default()
+            }
+            .into(),
+            match config.arm_driver.as_deref() {
+                None => stages::sim_arm::Args {
+                    prefix: prefix.clone(),
+                    rig: rig.clone(),
+                    move_ms: config.move_ms,
+                    rate_hz: config.arm_rate_hz,
+                }
+                .into(),
+                Some(command) => stages::arm_driver::Args {
+                    command: shell_words::split(command)?,
+                    prefix: prefix.clone(),
+                    rig: rig.clone(),
+                }
+                .into(),
             },
         ]);
-        let arm = StageArgs::Kinematics {
-            rig: rig.clone(),
-            plan: plan_path,
+        let arm = stages::kinematics::Args {
+            plan: Some(plan_path),
             dwell_ms: config.dwell_ms,
-            wait_subscribers: 0,
-            journal: arm_journal,
-        };
+            journal: Some(arm_journal),
+            ..stages::kinematics::Args::new(prefix, &rig)
+        }
+        .into();
         let side = self.link.as_ref().map(|l| l.side);
         let Here {
             consumers,
@@ -213,22 +232,17 @@ impl Run {
                 consumers,
                 after_ready: vec![arm],
             },
-            Some(link) => self.split(link, mirror, consumers, arm),
+            Some(link) => self.split(link, prefix, mirror, consumers, arm),
         };
         for stage in &mut after_ready {
-            if let StageArgs::Kinematics {
-                wait_subscribers, ..
-            } = stage
-            {
-                *wait_subscribers = subscribers_of(&consumers, TopicId::JointState);
+            if let StageArgs::Kinematics(kinematics) = stage {
+                kinematics.wait_subscribers = subscribers_of(&consumers, TopicId::JointState);
             }
         }
-        let mirror_here = consumers
-            .iter()
-            .any(|s| matches!(s, StageArgs::Mirror { .. }));
+        let mirror_here = consumers.iter().any(|s| matches!(s, StageArgs::Mirror(_)));
         let recorded_here = consumers
             .iter()
-            .any(|s| matches!(s, StageArgs::Recorder { .. }));
+            .any(|s| matches!(s, StageArgs::Recorder(_)));
 
         let ends_run = if side == Some(Side::Robot) {
             "kinematics_proc"
@@ -296,7 +310,14 @@ impl Run {
     /// publish, and subscribes only once the workstation's bridge is up, so
     /// the arm waits for the workstation) and stops last; on the
     /// workstation it starts once the stages there listen, as a source.
-    fn split(&self, link: &Link, mirror: usize, consumers: Vec<StageArgs>, arm: StageArgs) -> Here {
+    fn split(
+        &self,
+        link: &Link,
+        prefix: &str,
+        mirror: usize,
+        consumers: Vec<StageArgs>,
+        arm: StageArgs,
+    ) -> Here {
         let split = &self.config.split;
         let (here, there): (Vec<StageArgs>, Vec<StageArgs>) = consumers
             .into_iter()
@@ -304,18 +325,19 @@ impl Run {
             .partition(|s| side_of(s, split) == link.side);
         let (here_refs, there_refs): (Vec<&StageArgs>, Vec<&StageArgs>) =
             (here.iter().collect(), there.iter().collect());
-        let bridge = StageArgs::Bridge(BridgeArgs {
-            namespace: format!("{}/m{mirror}", link.namespace),
+        let bridge = StageArgs::from(stages::bridge::Args {
+            prefix: prefix.to_string(),
+            namespace: Some(format!("{}/m{mirror}", link.namespace)),
             send: crossing(&here_refs, &there_refs),
             receive: crossing(&there_refs, &here_refs),
             listen: link.listen.clone(),
             connect: link.connect.clone(),
             compress_frames: split.compress_frames,
-            lease_ms: split.lease_ms,
+            lease_ms: split.lease_ms.unwrap_or(stages::bridge::DEFAULT_LEASE_MS),
         });
         let (arm, consumers): (Vec<StageArgs>, Vec<StageArgs>) = here
             .into_iter()
-            .partition(|s| matches!(s, StageArgs::Kinematics { .. }));
+            .partition(|s| matches!(s, StageArgs::Kinematics(_)));
         match link.side {
             Side::Robot => Here {
                 consumers: [bridge].into_iter().chain(consumers).collect(),
@@ -336,7 +358,7 @@ impl Run {
     pub fn replay(
         &self,
         file: &Path,
-        kind: recorder::replay::Kind,
+        kind: stages::replay::Kind,
         mirror: usize,
     ) -> Result<PlacementResult> {
         let config = &self.config;
@@ -357,44 +379,63 @@ impl Run {
         let bus = Bus::new(&launch.prefix, "pipeline")?;
         let mut supervisor = Supervisor::new(&launch, "mirror_proc");
         let replayed = kind.topics();
-        let mut stages = Vec::new();
+        let prefix = &launch.prefix;
+        let mut table: Vec<StageArgs> = Vec::new();
         if self.record {
-            stages.push(StageArgs::Recorder {
-                out: recording.clone(),
-                no_drop: true,
-                rig: rig.clone(),
-                attach: vec![dir.join("plan.csv"), self.config_path.clone()],
-                meta: vec![
-                    ("mirror".into(), mirror.to_string()),
-                    ("method".into(), config.method.to_string()),
-                    ("fps".into(), config.fps.to_string()),
-                    ("replay_of".into(), file.display().to_string()),
-                    ("replay_kind".into(), kind.name().into()),
-                ],
-                live_view: self.live_view,
-            });
+            table.push(
+                stages::recorder::Args {
+                    prefix: prefix.clone(),
+                    out: recording.clone(),
+                    overwrite: true,
+                    no_drop: true,
+                    rig: Some(rig.clone()),
+                    attach: vec![dir.join("plan.csv"), self.config_path.clone()],
+                    meta: vec![
+                        ("mirror".into(), mirror.to_string()),
+                        ("method".into(), config.method.to_string()),
+                        ("fps".into(), config.fps.to_string()),
+                        ("replay_of".into(), file.display().to_string()),
+                        ("replay_kind".into(), kind.name().into()),
+                    ],
+                    live_view: self.live_view,
+                    ..Default::default()
+                }
+                .into(),
+            );
         }
-        stages.push(StageArgs::Mirror {
-            rig: rig.clone(),
-            method: config.method,
-            min_train: config.min_train,
-            report: report_path.clone(),
-            journal,
-        });
-        if kind == recorder::replay::Kind::Frames {
-            stages.push(StageArgs::Tracker);
+        table.push(
+            stages::mirror::Args {
+                method: config.method,
+                min_train: config.min_train,
+                report: Some(report_path.clone()),
+                journal: Some(journal),
+                ..stages::mirror::Args::new(prefix, &rig)
+            }
+            .into(),
+        );
+        if kind == stages::replay::Kind::Frames {
+            table.push(
+                stages::tracker::Args {
+                    prefix: prefix.clone(),
+                    ..Default::default()
+                }
+                .into(),
+            );
         }
         // Each replayed topic waits for every stage that reads it.
         let wait_subscribers = replayed
             .iter()
-            .map(|t| subscribers_of(&stages, *t))
+            .map(|t| subscribers_of(&table, *t))
             .min()
             .unwrap_or(0);
-        supervisor.start(StageArgs::Replay {
-            file: file.to_path_buf(),
-            kind,
-            wait_subscribers,
-        })?;
+        supervisor.start(
+            stages::replay::Args {
+                kind,
+                wait_subscribers,
+                ..stages::replay::Args::new(file, prefix)
+            }
+            .into(),
+        )?;
         // Replay creates every service lossless (publishers wait for the
         // slowest subscriber), its topics' and the rest; nothing may create
         // one before it does (then its settings differ and replay fails).
@@ -410,7 +451,7 @@ impl Run {
             std::thread::sleep(Duration::from_millis(10));
         }
         let _services = bus.open_all()?;
-        for stage in stages {
+        for stage in table {
             supervisor.start(stage)?;
         }
         self.conclude(Concluding {

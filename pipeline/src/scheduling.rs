@@ -8,7 +8,7 @@
 //! tens of milliseconds. `SCHED_FIFO` runs the stages on the sample's path
 //! before every normally scheduled process whenever they have work, each
 //! further down the path above the ones before it (see
-//! [`crate::stages::StageArgs::sample_path_depth`]); they block between
+//! [`stages::StageArgs::sample_path_depth`]); they block between
 //! frames, so the others keep the rest of the CPU (and the kernel keeps 5%
 //! of each second for them whatever happens).
 

@@ -10,7 +10,10 @@ use anyhow::{Context, Result};
 use messages::Bus;
 use messages::topics::TopicId;
 
-use crate::stages::{MAX_RESTARTS, RestartPolicy, StageArgs, subscribers_of};
+use stages::{RestartPolicy, StageArgs, subscribers_of};
+
+/// Restarts allowed per stage before the run fails.
+pub const MAX_RESTARTS: u32 = 3;
 
 /// Where and how a placement's stages are started.
 pub struct Launch {
@@ -93,11 +96,14 @@ impl Launch {
         // A live recorder takes messages out of shared memory on a thread at
         // the base priority, so that the stages above it cannot starve it of
         // frames; it compresses and writes at its niceness.
-        if let (Some(base), StageArgs::Recorder { no_drop: false, .. }) = (self.realtime, stage) {
-            command.args(["--realtime-priority".to_string(), base.to_string()]);
+        let mut stage = stage.clone();
+        if let (Some(base), StageArgs::Recorder(recorder)) = (self.realtime, &mut stage)
+            && !recorder.no_drop
+        {
+            recorder.realtime_priority = Some(base);
         }
         command
-            .args(stage.argv(&self.prefix))
+            .args(stage.argv())
             .stdout(Stdio::null())
             .stderr(log)
             .spawn()

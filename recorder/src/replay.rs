@@ -14,63 +14,7 @@ use messages::{AnyPublisher, Bus};
 
 use crate::reader::Recording;
 
-/// What a replay publishes, named for the stages it lets re-run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Kind {
-    /// Frames and joint states: the tracker and the mirror stage re-run.
-    Frames,
-    /// Detections and joint states: the mirror stage re-runs.
-    Detections,
-    /// Every recorded topic.
-    All,
-}
-
-impl Kind {
-    /// Its name on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            Kind::Frames => "frames",
-            Kind::Detections => "detections",
-            Kind::All => "all",
-        }
-    }
-
-    /// The topics it publishes.
-    pub fn topics(self) -> &'static [TopicId] {
-        match self {
-            Kind::Frames => &[TopicId::Frames, TopicId::JointState],
-            Kind::Detections => &[TopicId::Detections, TopicId::JointState],
-            Kind::All => &TopicId::ALL,
-        }
-    }
-}
-
-/// How fast to replay.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Pace {
-    /// As recorded (log-time gaps kept).
-    Original,
-    /// Log-time gaps divided by this factor (2 = twice as fast).
-    Scaled(f64),
-    /// As fast as the slowest consumer takes the messages.
-    Lockstep,
-}
-
-impl std::str::FromStr for Pace {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "original" => Ok(Pace::Original),
-            "lockstep" => Ok(Pace::Lockstep),
-            _ => match s.strip_suffix('x').unwrap_or(s).parse::<f64>() {
-                Ok(f) if f.is_finite() && f > 0.0 => Ok(Pace::Scaled(f)),
-                _ => Err(format!(
-                    "`{s}`: expected original, lockstep or a speed factor such as 2x"
-                )),
-            },
-        }
-    }
-}
+pub use stages::replay::{Kind, Pace};
 
 /// What to replay and how.
 #[derive(Debug, Clone)]

@@ -19,25 +19,14 @@ use crate::channels::{MESSAGE_ENCODING, Message, SCHEMA_ENCODING, TopicId};
 use crate::live_view::LiveView;
 use crate::view::{ViewBuilder, ViewMessage, ViewTopic};
 
-/// Chunk compression.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
-pub enum Compression {
-    /// Zstandard (default): the best ratio at camera rates.
-    #[default]
-    Zstd,
-    /// LZ4: faster, larger.
-    Lz4,
-    /// No compression.
-    None,
-}
+pub use stages::recorder::Compression;
 
-impl Compression {
-    fn mcap(self) -> Option<mcap::Compression> {
-        match self {
-            Compression::Zstd => Some(mcap::Compression::Zstd),
-            Compression::Lz4 => Some(mcap::Compression::Lz4),
-            Compression::None => None,
-        }
+/// The MCAP writer's compression for `compression`.
+fn mcap_compression(compression: Compression) -> Option<mcap::Compression> {
+    match compression {
+        Compression::Zstd => Some(mcap::Compression::Zstd),
+        Compression::Lz4 => Some(mcap::Compression::Lz4),
+        Compression::None => None,
     }
 }
 
@@ -454,7 +443,7 @@ impl Mcap {
 
     fn create(out: BufWriter<File>, options: &WriterOptions) -> Result<Self, mcap::McapError> {
         let mut writer = mcap::WriteOptions::new()
-            .compression(options.compression.mcap())
+            .compression(mcap_compression(options.compression))
             .chunk_size(Some(options.chunk_bytes))
             .profile("")
             .library(format!("recorder {}", env!("CARGO_PKG_VERSION")))

@@ -22,6 +22,7 @@ use std::path::Path;
 use std::process::Command;
 
 use serde_json::{Value, json};
+use tests::report::{stage_counter_or_zero, stage_stats};
 
 /// Calibration, mirror test and direct test poses of one run.
 const POSES_FULL: (usize, usize, usize) = (12, 5, 3);
@@ -58,20 +59,7 @@ fn run_pipeline(bins: &Path, fps: f64, poses: (usize, usize, usize)) -> Value {
 
 /// The summary of `stage`'s latency `name`, or null.
 fn latency<'a>(placement: &'a Value, stage: &str, name: &str) -> &'a Value {
-    stage_summary(placement, stage).map_or(&Value::Null, |s| &s["latencies"][name])
-}
-
-fn counter(placement: &Value, stage: &str, name: &str) -> u64 {
-    stage_summary(placement, stage)
-        .and_then(|s| s["counters"][name].as_u64())
-        .unwrap_or(0)
-}
-
-fn stage_summary<'a>(placement: &'a Value, stage: &str) -> Option<&'a Value> {
-    placement["stages"]
-        .as_array()?
-        .iter()
-        .find(|s| s["stage"] == stage)
+    stage_stats(placement, stage).map_or(&Value::Null, |s| &s["latencies"][name])
 }
 
 fn ms(v: &Value, key: &str) -> f64 {
@@ -118,9 +106,9 @@ fn main() {
         let tracker_work = latency(&placement, "tracker_proc", "receive_to_publish");
         let mirror_work = latency(&placement, "mirror_proc", "receive_to_publish");
         let baseline_ms = ms(tracker_work, "p50_ms") + ms(mirror_work, "p50_ms");
-        let late = counter(&placement, "camera_proc", "frames_late");
-        let missed = counter(&placement, "tracker_proc", "frames_missed")
-            + counter(&placement, "mirror_proc", "poses_missed");
+        let late = stage_counter_or_zero(&placement, "camera_proc", "frames_late");
+        let missed = stage_counter_or_zero(&placement, "tracker_proc", "frames_missed")
+            + stage_counter_or_zero(&placement, "mirror_proc", "poses_missed");
         let live = &placement["report"];
         let paired = live["train_samples"].as_u64().unwrap_or(0) as usize
             + live["test_samples"].as_u64().unwrap_or(0) as usize;
@@ -141,7 +129,7 @@ fn main() {
         );
         rows.push(json!({
             "fps": fps,
-            "frames": counter(&placement, "camera_proc", "frames"),
+            "frames": stage_counter_or_zero(&placement, "camera_proc", "frames"),
             "frames_late": late,
             "frame_interval": interval,
             "simulated_capture": capture,
@@ -150,8 +138,8 @@ fn main() {
             "baseline_stage_work_p50_ms": baseline_ms,
             "tracker_receive_to_publish": tracker_work,
             "mirror_receive_to_publish": mirror_work,
-            "frames_missed": counter(&placement, "tracker_proc", "frames_missed"),
-            "poses_missed": counter(&placement, "mirror_proc", "poses_missed"),
+            "frames_missed": stage_counter_or_zero(&placement, "tracker_proc", "frames_missed"),
+            "poses_missed": stage_counter_or_zero(&placement, "mirror_proc", "poses_missed"),
             "poses_paired": paired,
             "poses_planned": planned,
             "sustained": sustained,

@@ -1,47 +1,48 @@
 //! Helpers for the cross-crate tests: building and finding the stage
-//! binaries, and a guard that kills spawned processes.
+//! binaries, a guard that kills spawned processes and waiting for them to
+//! exit; in modules, two hosts on this machine, the launcher's report, and
+//! the Python the tests run.
 
 pub mod hosts;
+pub mod python;
+pub mod report;
 
 use std::path::PathBuf;
-use std::process::{Child, Command};
+use std::process::{Child, Command, ExitStatus};
 use std::sync::OnceLock;
+use std::time::{Duration, Instant};
 
-/// The stage binaries, for `cargo build` or `cargo run`.
-pub const STAGE_PACKAGES: [&str; 7] = [
-    "bridge",
-    "camera_proc",
-    "tracker_proc",
-    "kinematics_proc",
-    "mirror_proc",
-    "pipeline",
-    "recorder",
-];
-
-/// Builds the stage binaries (test profile) once per test run and returns
-/// their directory.
+/// Builds the workspace's binaries (test profile) once per test process
+/// and returns their directory.
+///
+/// It builds what `cargo test --workspace --all-targets` builds, binaries
+/// included: the same selection resolves every dependency with the same
+/// features, so after the test build this compiles only the binaries
+/// themselves. (Building the stage packages alone resolved features
+/// differently and compiled the dependencies a second time: 8 minutes of
+/// CI.)
 pub fn stage_binaries() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    // The test profile reuses what `cargo test` just compiled.
-    DIR.get_or_init(|| build_stage_binaries("test")).clone()
+    DIR.get_or_init(|| build_binaries("test", &["--workspace", "--all-targets"]))
+        .clone()
 }
 
-/// Builds the stage binaries optimised (for benchmarks) and returns their
-/// directory.
+/// Builds the workspace's binaries optimised (for benchmarks) and returns
+/// their directory.
 pub fn release_stage_binaries() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| build_stage_binaries("release")).clone()
+    DIR.get_or_init(|| build_binaries("release", &["--workspace", "--bins"]))
+        .clone()
 }
 
-fn build_stage_binaries(profile: &str) -> PathBuf {
+fn build_binaries(profile: &str, selection: &[&str]) -> PathBuf {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let mut command = Command::new(cargo);
-    command.args(["build", "--quiet", "--profile", profile, "--bins"]);
-    for package in STAGE_PACKAGES {
-        command.args(["-p", package]);
-    }
-    let status = command.status().expect("cargo runs");
-    assert!(status.success(), "building the stage binaries failed");
+    let status = Command::new(cargo)
+        .args(["build", "--quiet", "--profile", profile])
+        .args(selection)
+        .status()
+        .expect("cargo runs");
+    assert!(status.success(), "building the workspace's binaries failed");
     // target/<dir>/deps/<test or bench> -> target/<dir>
     let exe = std::env::current_exe().expect("test executable");
     let built_beside_us = exe
@@ -64,6 +65,34 @@ impl Drop for KillOnDrop {
     fn drop(&mut self) {
         let _ = self.0.kill();
         let _ = self.0.wait();
+    }
+}
+
+/// Waits at most `within` for `child` to exit and returns its exit status.
+/// Panics, naming `what`, if it has not exited by then.
+pub fn wait_exit(child: &mut Child, within: Duration, what: &str) -> ExitStatus {
+    wait_exit_showing(child, within, what, String::new)
+}
+
+/// [`wait_exit`], with `details()` (say the logs to look at) appended to
+/// the message it panics with; `details` is called only then.
+pub fn wait_exit_showing(
+    child: &mut Child,
+    within: Duration,
+    what: &str,
+    details: impl Fn() -> String,
+) -> ExitStatus {
+    let started = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        assert!(
+            started.elapsed() < within,
+            "{what} did not exit in {within:?}{}",
+            details()
+        );
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 

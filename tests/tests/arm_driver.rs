@@ -11,30 +11,16 @@ use std::time::{Duration, Instant};
 
 use messages::topics;
 use messages::{Bus, JointPositions, PoseGoal, now_ns};
+use tests::python::python_with_driver_sdk;
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// The Python with the driver SDK installed (`bash scripts/setup.sh`).
-fn python() -> PathBuf {
-    let python = repo().join("target/pyenv/bin/python");
-    let ok = Command::new(&python)
-        .args(["-c", "import mirror_driver"])
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(
-        ok,
-        "{} cannot import mirror_driver: run `bash scripts/setup.sh`",
-        python.display()
-    );
-    python
-}
-
 #[test]
 fn the_python_sdk_layouts_are_the_rust_layouts() {
-    let out = Command::new(python())
+    let out = Command::new(python_with_driver_sdk())
         .args([
             "-c",
             "import json, mirror_driver as m; print(json.dumps({t.type_name(): m.layout(t) for t in (m.JointPositions, m.PoseGoal)}))",
@@ -200,7 +186,7 @@ fn the_python_example_driver_stands_in_for_the_arm() {
     .unwrap();
     let driver = format!(
         "{} {}",
-        python().display(),
+        python_with_driver_sdk().display(),
         repo().join("python/examples/sim_arm.py").display()
     );
     let out = dir.path().join("out");

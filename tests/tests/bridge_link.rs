@@ -326,7 +326,7 @@ fn topics_cross_between_prefixes_and_a_foreign_layout_is_refused() {
         "the refusals are not counted:\n{log}"
     );
     // Every joint state sent after the probes, and at least one probe.
-    let count = |name: &str| counter(&log, name);
+    let count = |name: &str| counter_in_log(&log, name);
     assert!(count("received_joint_state") > n, "{log}");
     assert_eq!(count("received_frames"), 5, "{log}");
     assert_eq!(count("lost_joint_state"), 0, "{log}");
@@ -353,8 +353,8 @@ fn bridge_on(hosts: &TwoHosts, k: usize, args: &[&str]) -> KillOnDrop {
     )
 }
 
-/// The value of counter `name` in a stage's log.
-fn counter(log: &str, name: &str) -> u64 {
+/// The value of counter `name` in a stage's log (its first ` name=N`).
+fn counter_in_log(log: &str, name: &str) -> u64 {
     let at = log
         .find(&format!(" {name}="))
         .unwrap_or_else(|| panic!("no {name} in:\n{log}"));
@@ -462,14 +462,17 @@ fn a_cut_link_comes_back_by_itself_and_both_sides_count_the_loss() {
     let first = arrived[0];
     let missing = (last - first + 1) - arrived.len() as u64;
     assert!(missing > 0, "a 3 s cut with a 1 s lease lost nothing");
-    assert_eq!(counter(&log, "lost_joint_state"), missing, "{log}");
+    assert_eq!(counter_in_log(&log, "lost_joint_state"), missing, "{log}");
     // The sending side knows it spoke to no one for a while.
-    assert!(counter(&send_log, "unheard_joint_state") > 0, "{send_log}");
+    assert!(
+        counter_in_log(&send_log, "unheard_joint_state") > 0,
+        "{send_log}"
+    );
     eprintln!(
         "published {} after the first arrival, {missing} lost in the cut; sender: unheard {}, dropped {}",
         last - first + 1,
-        counter(&send_log, "unheard_joint_state"),
-        counter(&send_log, "dropped_joint_state")
+        counter_in_log(&send_log, "unheard_joint_state"),
+        counter_in_log(&send_log, "dropped_joint_state")
     );
 }
 
@@ -589,7 +592,7 @@ fn a_second_robot_on_the_same_network_does_not_disturb_the_first() {
         (1..=1000).collect::<Vec<_>>(),
         "the first robot's stream was disturbed"
     );
-    assert_eq!(counter(&log1, "lost_joint_state"), 0, "{log1}");
+    assert_eq!(counter_in_log(&log1, "lost_joint_state"), 0, "{log1}");
     // The second robot's messages crossed too, from when its link was up
     // (the workstation side connects again every 1 to 4 s) to its last.
     assert!(

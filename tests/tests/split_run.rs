@@ -13,14 +13,15 @@
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
-use std::process::{Command, ExitStatus, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use nalgebra::Vector3;
 use serde_json::Value;
 use tests::hosts::{TwoHosts, skip_root_tests};
-use tests::{KillOnDrop, stage_binaries, unique_prefix};
+use tests::report::{assert_plane_near_truth, stage_counter, stage_stats};
+use tests::{KillOnDrop, stage_binaries, unique_prefix, wait_exit_showing};
 
 /// A short run: 12 calibration poses, 8 test poses, frames compressed on
 /// the link.
@@ -46,23 +47,6 @@ fn logs(paths: &[PathBuf]) -> String {
         .join("\n")
 }
 
-/// Waits for `child` to exit, at most `within`; shows `logs` if it does not.
-fn wait(child: &mut KillOnDrop, within: Duration, what: &str, show: &[PathBuf]) -> ExitStatus {
-    let deadline = Instant::now() + within;
-    loop {
-        if let Some(status) = child.0.try_wait().unwrap() {
-            return status;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "{what} did not finish in {} s:\n{}",
-            within.as_secs(),
-            logs(show)
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
-
 fn json(path: &Path) -> Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap())
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -76,23 +60,6 @@ fn plane(report: &Value) -> (Vector3<f64>, f64) {
         Vector3::new(n[0], n[1], n[2]),
         p["distance"].as_f64().unwrap(),
     )
-}
-
-/// A stage's stats in a placement of a launcher's report.
-fn stage_stats<'a>(placement: &'a Value, stage: &str) -> Option<&'a Value> {
-    placement["stages"]
-        .as_array()?
-        .iter()
-        .find(|s| s["stage"] == stage)
-}
-
-/// A counter of a stage's stats in a placement of a launcher's report.
-fn counter(placement: &Value, stage: &str, name: &str) -> u64 {
-    let stats =
-        stage_stats(placement, stage).unwrap_or_else(|| panic!("no {stage} stats in {placement}"));
-    stats["counters"][name]
-        .as_u64()
-        .unwrap_or_else(|| panic!("no {name} in {stats}"))
 }
 
 /// Names of `dir`'s entries that contain one of `prefixes`.
@@ -200,13 +167,19 @@ fn split_run(config: &str, name: &str, one_host: bool) -> SplitRun {
         assert!(found.is_empty(), "{shared} on this host holds {found:?}");
     }
 
-    let ws_status = wait(
-        &mut ws,
+    let show_logs = || format!(":\n{}", logs(&all_logs));
+    let ws_status = wait_exit_showing(
+        &mut ws.0,
         Duration::from_secs(300),
         "the workstation",
-        &all_logs,
+        show_logs,
     );
-    let robot_status = wait(&mut robot, Duration::from_secs(60), "the robot", &all_logs);
+    let robot_status = wait_exit_showing(
+        &mut robot.0,
+        Duration::from_secs(60),
+        "the robot",
+        show_logs,
+    );
     let logs = logs(&all_logs);
     assert!(ws_status.success() && robot_status.success(), "{logs}");
     SplitRun { dir, logs }
@@ -219,26 +192,14 @@ fn assert_nothing_lost(split: &Value, topics: &[&str]) {
     assert_eq!(c["joint_states_missed"], 0, "{c}");
     for topic in topics {
         assert_eq!(
-            counter(split, "bridge", &format!("lost_{topic}")),
+            stage_counter(split, "bridge", &format!("lost_{topic}")),
             0,
             "lost {topic}: {}",
             stage_stats(split, "bridge").map_or(&Value::Null, |s| &s["counters"])
         );
-        assert!(counter(split, "bridge", &format!("received_{topic}")) > 0);
+        assert!(stage_counter(split, "bridge", &format!("received_{topic}")) > 0);
     }
-    assert_eq!(counter(split, "bridge", "refused"), 0);
-}
-
-/// The plane within 0.5 deg and 5 mm of the simulator's truth.
-fn assert_calibrated(placement: &Value) {
-    let (angle, distance) = (
-        placement["plane_angle_deg"].as_f64().unwrap(),
-        placement["plane_distance_mm"].as_f64().unwrap(),
-    );
-    assert!(
-        angle < 0.5 && distance < 5.0,
-        "plane off the truth by {angle} deg / {distance} mm"
-    );
+    assert_eq!(stage_counter(split, "bridge", "refused"), 0);
 }
 
 #[test]
@@ -253,8 +214,8 @@ fn a_run_split_between_robot_and_workstation_calibrates_as_on_one_host_and_repla
 
     // The workstation calibrated as one host does.
     let (one, split) = (&run.placement("single"), &run.placement("workstation"));
-    assert_calibrated(one);
-    assert_calibrated(split);
+    assert_plane_near_truth(one);
+    assert_plane_near_truth(split);
     let (one_report, split_report) = (&one["report"], &split["report"]);
     let ((n1, d1), (n2, d2)) = (plane(one_report), plane(split_report));
     let apart_deg = n1.angle(&n2).to_degrees();
@@ -294,8 +255,8 @@ fn a_run_split_between_robot_and_workstation_calibrates_as_on_one_host_and_repla
     // topic its stages publish; its progress came back over the link.
     let robot_report = &run.placement("robot");
     assert!(robot_report.get("report").is_none(), "{robot_report}");
-    assert!(counter(robot_report, "bridge", "received_samples") > 0);
-    assert_eq!(counter(robot_report, "bridge", "dropped_frames"), 0);
+    assert!(stage_counter(robot_report, "bridge", "received_samples") > 0);
+    assert_eq!(stage_counter(robot_report, "bridge", "dropped_frames"), 0);
     assert!(
         std::fs::read_to_string(&robot_log)
             .unwrap()
@@ -322,7 +283,7 @@ fn a_run_split_between_robot_and_workstation_calibrates_as_on_one_host_and_repla
     // it at its lower priority) is missing from the recording: the replay
     // would track from other frames and could not match.
     assert_eq!(
-        counter(split, "recorder", "frames_dropped_queue_full"),
+        stage_counter(split, "recorder", "frames_dropped_queue_full"),
         0,
         "the workstation's recording misses frames: {}",
         stage_stats(split, "recorder").map_or(&Value::Null, |s| &s["counters"])
@@ -387,7 +348,7 @@ fn with_the_tracker_offloaded_the_workstation_detects_and_calibrates() {
     let config = CONFIG.replace("[split]\n", "[split]\ntracker = \"workstation\"\n");
     let run = split_run(&config, "offload", false);
     let split = &run.placement("workstation");
-    assert_calibrated(split);
+    assert_plane_near_truth(split);
     let report = &split["report"];
     assert_eq!(
         (&report["train_samples"], &report["test_samples"]),
@@ -404,7 +365,7 @@ fn with_the_tracker_offloaded_the_workstation_detects_and_calibrates() {
         "no tracker on the workstation: {split}"
     );
     let robot = &run.placement("robot");
-    assert!(counter(robot, "bridge", "received_detections") > 0);
+    assert!(stage_counter(robot, "bridge", "received_detections") > 0);
     eprintln!(
         "offloaded: plane {:.3} deg / {:.2} mm off the truth",
         split["plane_angle_deg"].as_f64().unwrap(),

@@ -7,7 +7,7 @@ use std::process::ExitCode;
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
-use messages::{Bus, now_ns, topics};
+use messages::{now_ns, topics};
 use opencv::prelude::*;
 use tracker_proc::{Detector, Tracked, Tracker};
 
@@ -22,21 +22,7 @@ struct Args {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Subscribe to stereo frames and publish detections.
-    Run {
-        /// Service prefix of the pipeline.
-        #[arg(long, default_value = "default")]
-        prefix: String,
-        /// Only find markers as printed (no mirror-reversed ones).
-        #[arg(long)]
-        no_mirrored: bool,
-        /// Search each image whole every N frames, and in between only
-        /// around the markers of the last frame, with a low-resolution
-        /// look-out over the whole image (a marker not seen anywhere brings
-        /// the full scan forward); a frame's whole search is made after its
-        /// detections are published. 1 searches every frame whole.
-        #[arg(long, value_name = "N", default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
-        full_scan_every: u32,
-    },
+    Run(stages::tracker::Args),
     /// Print each image's detections as JSON lines (id, mirrored, corners, center).
     Detect {
         /// Image files.
@@ -74,7 +60,7 @@ fn detect_files(images: &[PathBuf]) -> Result<()> {
 
 fn run(prefix: &str, mirrored: bool, full_scan_every: u32) -> Result<()> {
     let mut tracker = Tracker::with_full_scan_every(mirrored, full_scan_every)?;
-    let bus = Bus::new(prefix, "tracker_proc")?;
+    let bus = stages::bus_of::<stages::tracker::Tracker>(prefix)?;
     let frames = bus.frame_subscriber::<topics::Frames>()?;
     let publisher = bus.publisher::<topics::Detections>()?;
     let mut stats = messages::stats::StageStats::new("tracker_proc");
@@ -128,11 +114,7 @@ fn run(prefix: &str, mirrored: bool, full_scan_every: u32) -> Result<()> {
 
 fn main() -> ExitCode {
     messages::stage_main("tracker_proc", || match Args::parse().command {
-        Command::Run {
-            prefix,
-            no_mirrored,
-            full_scan_every,
-        } => run(&prefix, !no_mirrored, full_scan_every),
+        Command::Run(args) => run(&args.prefix, !args.no_mirrored, args.full_scan_every),
         Command::Detect { images } => detect_files(&images),
     })
 }

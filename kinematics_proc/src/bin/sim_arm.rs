@@ -2,31 +2,12 @@
 //! in a fixed time and publishes its joint positions; the built-in arm
 //! driver of `pipeline` (give `--arm-driver` for a real one).
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Result, bail};
 use clap::Parser;
-
-/// Play the simulated arm: follow pose goals, publish joint positions.
-#[derive(Debug, Parser)]
-#[command(version, about)]
-struct Args {
-    /// Service prefix of the pipeline.
-    #[arg(long, default_value = "default")]
-    prefix: String,
-    /// Rig file (TOML) with the arm: its joints and limits.
-    #[arg(long)]
-    rig: PathBuf,
-    /// Time of each move, ms.
-    #[arg(long, default_value_t = 300)]
-    move_ms: u64,
-    /// Joint-position publication rate, Hz (that of a typical arm
-    /// controller's state stream).
-    #[arg(long, default_value_t = 250.0)]
-    rate_hz: f64,
-}
+use stages::sim_arm::Args;
 
 fn run(args: Args) -> Result<()> {
     let rig = formats::rig::read(&args.rig)?;

@@ -16,8 +16,6 @@ pub use paper::initial_estimate as paper_initial_estimate;
 
 use geometry::{Camera, GeometryError, Plane, Rig, Sample, View, triangulate::triangulate};
 use nalgebra::{Vector2, Vector3};
-use std::fmt;
-use std::str::FromStr;
 
 /// Fewest mirror samples any method accepts.
 pub const MIN_SAMPLES: usize = 3;
@@ -38,56 +36,7 @@ pub const MIN_GRAZING_DEG: f64 = 5.0;
 /// the wrong pose leave about 50 px.
 pub const MAX_TRAIN_RMS_PX: f64 = 25.0;
 
-/// A calibration method. The discriminants are the wire and recording
-/// values (`CalibrationMsg::method`): never reorder them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[repr(u32)]
-pub enum Method {
-    /// The paper's per-camera method.
-    #[serde(rename = "paper")]
-    Paper = 0,
-    /// A shared mirror plane.
-    #[serde(rename = "joint")]
-    Joint = 1,
-    /// A shared mirror plane and per-joint encoder offsets.
-    #[serde(rename = "joint+kinematics")]
-    JointKinematics = 2,
-}
-
-geometry::try_from_u32!(Method);
-
-impl Method {
-    /// All methods, in the order reports list them.
-    pub const ALL: [Method; 3] = [Method::Paper, Method::Joint, Method::JointKinematics];
-
-    /// The method's name in files and on the command line.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Method::Paper => "paper",
-            Method::Joint => "joint",
-            Method::JointKinematics => "joint+kinematics",
-        }
-    }
-}
-
-impl fmt::Display for Method {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl FromStr for Method {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Method::ALL
-            .into_iter()
-            .find(|m| m.as_str() == s)
-            .ok_or_else(|| {
-                format!("unknown method `{s}` (expected paper, joint or joint+kinematics)")
-            })
-    }
-}
+pub use formats::calibration::Method;
 
 /// Why a calibration could not be computed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -1,6 +1,7 @@
 """Join a robot's arm driver to the mirror perspective-taking pipeline.
 
-The contract (see the project's README, "Plugging in a real arm"):
+The contract (see the project's docs/real_robot.md; its data is
+``contract.json``, generated from the pipeline's own tables):
 
 - publish the arm's joint positions, stamped with CLOCK_MONOTONIC, on the
   ``joint_positions`` topic, at the driver's own rate;
@@ -28,6 +29,7 @@ from typing import Callable, Iterator, List, Optional, Sequence
 
 import iceoryx2 as iox2
 
+from .contract import CONTRACT, SERVICE, event_name, service_name
 from .messages import MAX_JOINTS, ROLE_DIRECT, ROLE_TEST, ROLE_TRAIN, JointPositions, PoseGoal, layout
 
 __all__ = [
@@ -44,10 +46,12 @@ __all__ = [
     "parse_args",
 ]
 
-# The pipeline's service settings (messages/src/bus.rs): a service opened
-# with other limits is refused by iceoryx2.
-_SMALL_BUFFER = 1024
-_MAX_PORTS = 16
+# The pipeline's service settings: a service opened with other limits is
+# refused by iceoryx2.
+_SMALL_BUFFER = SERVICE["subscriber_buffer"]
+_MAX_PORTS = SERVICE["max_ports"]
+_MAX_NODES = SERVICE["max_nodes"]
+_HISTORY = SERVICE["history_size"]
 
 
 def monotonic_ns() -> int:
@@ -68,6 +72,8 @@ class Goal:
 
 def parse_args(argv: Optional[Sequence[str]] = None, description: str = "") -> argparse.Namespace:
     """The arguments the launcher gives every arm driver: ``--prefix`` and ``--rig``."""
+    if CONTRACT["arguments"] != ["--prefix", "--rig"]:
+        raise ImportError(f"the pipeline gives drivers {CONTRACT['arguments']}; this SDK knows --prefix and --rig")
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--prefix", default="default", help="service prefix of the pipeline")
     parser.add_argument("--rig", required=True, help="rig file (TOML) with the arm")
@@ -86,33 +92,33 @@ class Driver:
         self._seq = 0
         self._last_pose: Optional[int] = None
         self._node = iox2.NodeBuilder.new().name(iox2.NodeName.new(name)).create(iox2.ServiceType.Ipc)
-        positions = self._service(prefix, "joint_positions", JointPositions)
+        positions = self._service(prefix, JointPositions.TOPIC, JointPositions)
         self._publisher = positions.publisher_builder().create()
-        self._notifier = self._event(prefix, "joint_positions").notifier_builder().create()
-        goals = self._service(prefix, "pose_goal", PoseGoal)
+        self._notifier = self._event(prefix, JointPositions.TOPIC).notifier_builder().create()
+        goals = self._service(prefix, PoseGoal.TOPIC, PoseGoal)
         self._subscriber = goals.subscriber_builder().buffer_size(_SMALL_BUFFER).create()
 
     def _service(self, prefix: str, topic: str, t):
-        name = iox2.ServiceName.new(f"mirror/{prefix}/{topic}")
+        name = iox2.ServiceName.new(service_name(prefix, topic))
         return (
             self._node.service_builder(name)
             .publish_subscribe(t)
             .subscriber_max_buffer_size(_SMALL_BUFFER)
-            .history_size(0)
+            .history_size(_HISTORY)
             .max_publishers(_MAX_PORTS)
             .max_subscribers(_MAX_PORTS)
-            .max_nodes(_MAX_PORTS * 2)
+            .max_nodes(_MAX_NODES)
             .open_or_create()
         )
 
     def _event(self, prefix: str, topic: str):
-        name = iox2.ServiceName.new(f"mirror/{prefix}/{topic}/event")
+        name = iox2.ServiceName.new(event_name(prefix, topic))
         return (
             self._node.service_builder(name)
             .event()
             .max_notifiers(_MAX_PORTS)
             .max_listeners(_MAX_PORTS)
-            .max_nodes(_MAX_PORTS * 2)
+            .max_nodes(_MAX_NODES)
             .open_or_create()
         )
 

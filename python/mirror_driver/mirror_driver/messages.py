@@ -3,16 +3,20 @@
 They match the ``#[repr(C)]`` types of the Rust ``messages`` crate byte for
 byte; ``type_name()`` returns the same versioned name, which iceoryx2 checks
 (with size and alignment) when a service is opened, so a driver built on an
-older layout is refused instead of misread.
+older layout is refused instead of misread. Names, sizes and wire values
+come from the contract (``contract.json``); the fields are checked against
+it on import.
 """
 
 import ctypes
 
+from .contract import CONTRACT, GOALS_TOPIC, POSITIONS_TOPIC, TOPICS
+
 #: Most joints a message carries.
-MAX_JOINTS = 8
+MAX_JOINTS = CONTRACT["max_joints"]
 
 #: ``Role`` wire values of a pose: training, test seen in the mirror, test seen directly.
-ROLE_TRAIN, ROLE_TEST, ROLE_DIRECT = 0, 1, 2
+ROLE_TRAIN, ROLE_TEST, ROLE_DIRECT = (CONTRACT["roles"][r] for r in ("train", "test", "direct"))
 
 
 class JointPositions(ctypes.Structure):
@@ -27,15 +31,18 @@ class JointPositions(ctypes.Structure):
         ("q", ctypes.c_double * MAX_JOINTS),
     ]
 
+    TOPIC = POSITIONS_TOPIC
+
     @staticmethod
     def type_name() -> str:
-        return "mirror.JointPositions.v1"
+        return TOPICS[POSITIONS_TOPIC]["type_name"]
 
 
 class PoseGoal(ctypes.Structure):
     """A pose to move to, from the pipeline; ``flags & FINISHED`` ends the plan."""
 
-    FINISHED = 1
+    FINISHED = CONTRACT["pose_goal_flags"]["finished"]
+    TOPIC = GOALS_TOPIC
 
     _fields_ = [
         ("seq", ctypes.c_uint64),
@@ -50,11 +57,11 @@ class PoseGoal(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "mirror.PoseGoal.v1"
+        return TOPICS[GOALS_TOPIC]["type_name"]
 
 
 #: Each message's (size, alignment) in the Rust crate: checked on import.
-LAYOUTS = {JointPositions: (88, 8), PoseGoal: (104, 8)}
+LAYOUTS = {t: (TOPICS[t.TOPIC]["size"], TOPICS[t.TOPIC]["align"]) for t in (JointPositions, PoseGoal)}
 
 for _t, (_size, _align) in LAYOUTS.items():
     if (ctypes.sizeof(_t), ctypes.alignment(_t)) != (_size, _align):

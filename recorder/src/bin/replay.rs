@@ -9,9 +9,9 @@ use std::time::Duration;
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
-use recorder::channels::TopicId;
 use recorder::reader::Recording;
-use recorder::replay::{Kind, Pace, ReplayBus, ReplayOptions, replay};
+use recorder::replay::{ReplayBus, ReplayOptions, replay};
+use stages::replay::Args;
 
 /// Publish a recording back onto a pipeline's topics, or compare two
 /// recordings (`replay diff A B`).
@@ -55,58 +55,8 @@ enum Command {
     },
 }
 
-/// Replaying a recording.
-#[derive(Debug, clap::Args)]
-struct Args {
-    /// The MCAP recording.
-    #[arg(required = true)]
-    file: Option<PathBuf>,
-    /// Service prefix to publish on (use a fresh one, not a live pipeline's).
-    #[arg(long, required = true)]
-    prefix: Option<String>,
-    /// What to publish: `frames` (frames and joint states), `detections`
-    /// (detections and joint states), or `all` (every recorded topic).
-    #[arg(long, value_enum, default_value_t = Kind::Frames)]
-    kind: Kind,
-    /// Publish exactly these topics instead (comma separated), e.g. joint_state,detections.
-    #[arg(long, value_delimiter = ',')]
-    topics: Option<Vec<String>>,
-    /// original, lockstep (as fast as the slowest consumer takes them), or a factor such as 2x.
-    #[arg(long, default_value = "lockstep")]
-    pace: Pace,
-    /// Start this many seconds after the first message.
-    #[arg(long, default_value_t = 0.0)]
-    start: f64,
-    /// Wait until each replayed topic has this many subscribers.
-    #[arg(long, default_value_t = 1)]
-    wait_subscribers: usize,
-    /// How long to wait for them, s.
-    #[arg(long, default_value_t = 30.0)]
-    wait_timeout: f64,
-    /// Print the statistics as JSON on stdout.
-    #[arg(long)]
-    json: bool,
-}
-
-fn topics_of(args: &Args) -> Result<Vec<TopicId>> {
-    if let Some(names) = &args.topics {
-        return names
-            .iter()
-            .map(|n| {
-                TopicId::from_name(n).ok_or_else(|| {
-                    anyhow::anyhow!(
-                        "--topics: unknown topic `{n}` (known: {})",
-                        TopicId::ALL.map(|t| t.name()).join(", ")
-                    )
-                })
-            })
-            .collect();
-    }
-    Ok(args.kind.topics().to_vec())
-}
-
 fn run(args: Args) -> Result<()> {
-    let topics = topics_of(&args)?;
+    let topics = args.published().to_vec();
     // clap requires both unless a subcommand is given.
     let (Some(file), Some(prefix)) = (&args.file, &args.prefix) else {
         bail!("give the recording and --prefix");

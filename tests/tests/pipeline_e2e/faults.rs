@@ -16,6 +16,7 @@ use messages::{
 };
 use mirror_proc::calibrate::Method;
 use serde_json::Value;
+use tests::report::{assert_plane_near_truth, stage_counter_summed_over_processes};
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 
 use super::wait_for_line;
@@ -150,25 +151,6 @@ fn kill9(name: &str, prefix: &str) {
     assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
 }
 
-fn counter(placement: &Value, stage: &str, name: &str) -> u64 {
-    placement["stages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|s| s["stage"] == stage)
-        .filter_map(|s| s["counters"][name].as_u64())
-        .sum()
-}
-
-fn assert_calibrated(placement: &Value) {
-    let angle = placement["plane_angle_deg"].as_f64().unwrap_or(f64::NAN);
-    let distance = placement["plane_distance_mm"].as_f64().unwrap_or(f64::NAN);
-    assert!(
-        angle < 0.5 && distance < 5.0,
-        "plane off by {angle} deg / {distance} mm"
-    );
-}
-
 /// Each stage killed with SIGKILL in turn mid-run: the launcher restarts it,
 /// the new process reattaches to the services, and the calibration still
 /// completes. A second tracker started on the same pipeline changes nothing
@@ -212,7 +194,7 @@ fn stages_killed_mid_run_are_restarted_and_the_calibration_completes() {
         );
     }
     assert_eq!(placement["restarts"], 4, "{placement}");
-    assert_calibrated(&placement);
+    assert_plane_near_truth(&placement);
     let live = &placement["report"];
     let c = &live["counters"];
     // Each of the four kills may cost the pose being sampled when it came
@@ -632,19 +614,24 @@ fn malformed_messages_are_dropped_counted_and_harmless() {
     let log_path = run.out.join("mirror0/stages.log");
     let (placement, stderr) = run.finish();
     assert_eq!(placement["restarts"], 0, "{stderr:?}");
-    assert_calibrated(&placement);
+    assert_plane_near_truth(&placement);
     let k = BURSTS;
     // Five bad frames a burst, plus up to three real ones after the frame
     // from the future (the tracker then takes the real stream back).
-    let tracker = counter(&placement, "tracker_proc", "rejected");
+    let tracker = stage_counter_summed_over_processes(&placement, "tracker_proc", "rejected");
     assert!(
         (5 * k..=5 * k + 3).contains(&tracker),
         "tracker rejected {tracker}"
     );
     // Three bad joint positions and one bad goal a burst.
-    let camera = counter(&placement, "camera_proc", "arm_messages_rejected");
+    let camera =
+        stage_counter_summed_over_processes(&placement, "camera_proc", "arm_messages_rejected");
     assert_eq!(camera, 4 * k, "camera rejected {camera}");
-    let kinematics = counter(&placement, "kinematics_proc", "joint_positions_rejected");
+    let kinematics = stage_counter_summed_over_processes(
+        &placement,
+        "kinematics_proc",
+        "joint_positions_rejected",
+    );
     assert_eq!(kinematics, 3 * k, "kinematics_proc rejected {kinematics}");
     // Five bad detections and four bad joint states a burst, the joint
     // state and the frame's detections from the future.

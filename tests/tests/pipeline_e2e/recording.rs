@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use recorder::channels::TopicId;
 use recorder::reader::Recording;
-use tests::{KillOnDrop, stage_binaries, unique_prefix};
+use tests::python::python_with_mcap_reader;
+use tests::{KillOnDrop, stage_binaries, unique_prefix, wait_exit};
 
 use super::{live_run, wait_for_line};
 
@@ -31,20 +32,6 @@ fn spawn(name: &str, args: &[&str], log: &Path) -> KillOnDrop {
             .spawn()
             .unwrap(),
     )
-}
-
-fn wait_exit(child: &mut Child, within: Duration, what: &str) -> std::process::ExitStatus {
-    let started = Instant::now();
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            return status;
-        }
-        assert!(
-            started.elapsed() < within,
-            "{what} did not exit in {within:?}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 fn interrupt(child: &mut Child) {
@@ -273,26 +260,12 @@ fn logged_count(log: &str, what: &str, key: &str) -> u64 {
         .unwrap()
 }
 
-fn python() -> PathBuf {
-    if let Ok(p) = std::env::var("MIRROR_TEST_PYTHON") {
-        return p.into();
-    }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/pyenv/bin/python");
-    assert!(
-        venv.exists(),
-        "{} is missing: run scripts/test.sh once (it installs the PyPI `mcap` reader and the \
-         Foxglove schemas there), or set MIRROR_TEST_PYTHON",
-        venv.display()
-    );
-    venv
-}
-
 /// Runs `tests/python/<script>` with `args`: success and its output.
 fn run_python(script: &str, args: &[&str]) -> (bool, String) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("python")
         .join(script);
-    let output = Command::new(python())
+    let output = Command::new(python_with_mcap_reader())
         .arg(&script)
         .args(args)
         .output()
