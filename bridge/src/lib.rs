@@ -34,9 +34,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use messages::stats::StageStats;
+use messages::now_ns;
 use messages::topics::TopicId;
-use messages::{AnyPublisher, AnySubscriber, Bus, Rejections, now_ns};
+use runtime::stats::StageStats;
+use runtime::{AnyPublisher, AnySubscriber, Bus, Rejections};
 use zenoh::Wait;
 use zenoh::qos::{CongestionControl, Priority};
 
@@ -540,7 +541,7 @@ fn send(
     counters: &Counters,
     stops: &[&AtomicBool],
 ) -> Result<()> {
-    let bus = Bus::new(&options.prefix, "bridge_send")?.declared(messages::Ports {
+    let bus = Bus::new(&options.prefix, "bridge_send")?.declared(runtime::Ports {
         subscribes: &options.send,
         publishes: &[],
     });
@@ -766,7 +767,7 @@ fn receive(
     clocks: &Clocks<'_>,
     stops: &[&AtomicBool],
 ) -> Result<()> {
-    let bus = Bus::new(&options.prefix, "bridge_receive")?.declared(messages::Ports {
+    let bus = Bus::new(&options.prefix, "bridge_receive")?.declared(runtime::Ports {
         subscribes: &[],
         publishes: &options.receive,
     });

@@ -33,5 +33,5 @@ fn run(args: Args) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    messages::stage_main("bridge", || run(Args::parse()))
+    runtime::stage_main("bridge", || run(Args::parse()))
 }

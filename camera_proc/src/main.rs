@@ -4,11 +4,11 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use camera_proc::look::LookName;
 use camera_proc::source::{Captures, ImagePairs};
 use camera_proc::stage::{self, Pace};
 use clap::{Parser, Subcommand};
 use geometry::sim::Facing;
+use renderer::look::LookName;
 
 /// Publish synchronized stereo frames.
 #[derive(Debug, Parser)]
@@ -80,7 +80,7 @@ enum Source {
 }
 
 fn main() -> ExitCode {
-    messages::stage_main("camera_proc", || match Args::parse().source {
+    runtime::stage_main("camera_proc", || match Args::parse().source {
         Source::Sim(stages::camera::Args {
             prefix,
             mirror,
@@ -89,9 +89,9 @@ fn main() -> ExitCode {
             look,
             mjpeg,
         }) => {
-            let look = camera_proc::look::Look {
+            let look = renderer::look::Look {
                 jpeg_quality: mjpeg,
-                ..camera_proc::look::Look::named(look)
+                ..renderer::look::Look::named(look)
             };
             stage::run_sim(&prefix, mirror, fps, tail_frames, look)
         }

@@ -5,9 +5,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use opencv::core::{Mat, Vector};
 
-use crate::look::LookName;
-use crate::render::Renderer;
 use geometry::sim::{Facing, SimWorld};
+use renderer::Renderer;
+use renderer::look::{Look, LookName};
 
 /// Renders one stereo pair of the simulated scene in `look` with the arm at `q`
 /// (encoder readings, rad) to `OUT_left.png` and `OUT_right.png`, and
@@ -25,7 +25,7 @@ pub fn snapshot(
     if q.len() != dof {
         bail!("--q: {} joint angles given, the arm has {dof}", q.len());
     }
-    let mut renderer = Renderer::with_look(world, crate::look::Look::named(look))?;
+    let mut renderer = Renderer::with_look(world, Look::named(look))?;
     let n = (intr.width * intr.height) as usize;
     let (mut left, mut right) = (vec![0u8; n], vec![0u8; n]);
     let truth = renderer.render(q, facing, 0, &mut left, &mut right)?;

@@ -5,13 +5,14 @@ use std::ops::ControlFlow;
 use std::time::Duration;
 
 use anyhow::{Result, bail};
-use messages::{Bus, Encoding, FrameHeader, JointPositions, Role, now_ns, topics};
+use messages::{Encoding, FrameHeader, JointPositions, Role, now_ns, topics};
+use runtime::Bus;
 
 use crate::clock::FrameClock;
-use crate::look::Look;
-use crate::render::Renderer;
 use crate::source::StereoSource;
 use geometry::sim::{Facing, SimWorld};
+use renderer::Renderer;
+use renderer::look::Look;
 
 fn header(seq: u64, width: u32, height: u32) -> FrameHeader {
     FrameHeader {
@@ -66,12 +67,12 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32, look: Lo
     // The arm's speed from its last two positions, for motion blur.
     let mut velocity: Option<Vec<f64>> = None;
     let (mut role, mut finished) = (Role::Train as u32, false);
-    let mut rejections = messages::Rejections::default();
-    let mut order = messages::StampOrder::default();
+    let mut rejections = runtime::Rejections::default();
+    let mut order = runtime::StampOrder::default();
     let (mut seq, mut after_done) = (0u64, 0u32);
     let mut clock = FrameClock::new(fps);
     let mut last_published = None::<i64>;
-    let mut stats = messages::stats::StageStats::new("camera_proc");
+    let mut stats = runtime::stats::StageStats::new("camera_proc");
     tracing::info!(mirror, fps, ?look, "rendering the simulated head");
     // A fine tick keeps frames within a millisecond of their schedule.
     let tick = Duration::from_nanos(clock.period_ns() as u64).min(Duration::from_millis(1));
@@ -104,7 +105,7 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32, look: Lo
             }
             let h = header(seq, intr.width, intr.height);
             let _span = tracing::trace_span!("camera_step", seq).entered();
-            let cpu = messages::stats::StepStart::now();
+            let cpu = runtime::stats::StepStart::now();
             frames.publish(h, |left, right| {
                 renderer
                     .render_moving(
@@ -180,7 +181,7 @@ pub fn run_source(prefix: &str, mut source: impl StereoSource, pace: Pace) -> Re
             "lockstep: publishing as fast as the subscribers take frames"
         );
     }
-    let mut stats = messages::stats::StageStats::new("camera_proc");
+    let mut stats = runtime::stats::StageStats::new("camera_proc");
     let mut seq = 0u64;
     let tick = match pace {
         Pace::Rate(f) => Duration::from_secs_f64(1.0 / f),
@@ -189,7 +190,7 @@ pub fn run_source(prefix: &str, mut source: impl StereoSource, pace: Pace) -> Re
         Pace::Lockstep { .. } => Duration::from_micros(50),
     };
     bus.wake()?.run(&[], Some(tick), || -> Result<_> {
-        let cpu = messages::stats::StepStart::now();
+        let cpu = runtime::stats::StepStart::now();
         let more = frames.publish(header(seq, w, h), |left, right| {
             source.next_into(left, right)
         })??;

@@ -47,5 +47,5 @@ fn run(args: Args) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    messages::stage_main("kinematics_proc", || run(Args::parse()))
+    runtime::stage_main("kinematics_proc", || run(Args::parse()))
 }

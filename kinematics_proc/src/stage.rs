@@ -7,9 +7,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use geometry::Arm;
-use messages::journal::Journal;
 use messages::topics::{self, Topic};
 use messages::{JointPositions, JointState, MAX_JOINTS, Phase, now_ns};
+use runtime::journal::Journal;
 
 use crate::PlannedPose;
 use crate::follow::{Follower, SettleRule};
@@ -113,9 +113,9 @@ pub fn drive(
     let mut follower = Follower::new(plan, options.settle);
     tracing::info!(poses, "running the pose plan");
     let dof = arm.dof();
-    let mut stats = messages::stats::StageStats::new("kinematics_proc");
-    let mut rejections = messages::Rejections::default();
-    let mut order = messages::StampOrder::default();
+    let mut stats = runtime::stats::StageStats::new("kinematics_proc");
+    let mut rejections = runtime::Rejections::default();
+    let mut order = runtime::StampOrder::default();
     let (mut published, mut received) = (0u64, 0u64);
     let mut last_fault = None::<String>;
     let mut last_heard = Instant::now();
@@ -137,7 +137,7 @@ pub fn drive(
                 }
                 last_heard = Instant::now();
                 let _span = tracing::trace_span!("kinematics_step", seq = p.seq).entered();
-                let cpu = messages::stats::StepStart::now();
+                let cpu = runtime::stats::StepStart::now();
                 let step = follower.step(&p, arm)?;
                 if let Some(ns) = step.settled_after_ns {
                     stats.record("goal_to_settled", ns);
@@ -192,11 +192,11 @@ pub fn run_sim_arm(prefix: &str, home: Vec<f64>, move_ns: i64, tick: Duration) -
     let positions = bus.publisher::<topics::JointPositions>()?;
     let goals = bus.subscriber::<topics::PoseGoal>()?;
     let mut arm = SimArm::new(home, move_ns);
-    let mut rejections = messages::Rejections::default();
-    let mut stats = messages::stats::StageStats::new("sim_arm");
+    let mut rejections = runtime::Rejections::default();
+    let mut stats = runtime::stats::StageStats::new("sim_arm");
     let mut seq = 0u64;
     bus.wake()?.run(&[], Some(tick), || -> Result<_> {
-        let cpu = messages::stats::StepStart::now();
+        let cpu = runtime::stats::StepStart::now();
         let now = now_ns();
         let mut finished = false;
         while let Some(goal) = goals.receive()? {

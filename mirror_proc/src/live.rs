@@ -21,9 +21,10 @@ use geometry::triangulate::triangulate;
 use geometry::{Rig, Sample};
 use messages::{
     CalibrationMsg, CameraPose, JointState, LocatedObject, MAX_JOINTS, MirrorSample, Phase,
-    Prediction, Rejections, Role, StereoDetections,
+    Prediction, Role, StereoDetections,
 };
 use nalgebra::Vector2;
+use runtime::Rejections;
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::{Calibration, Method, calibrate};

@@ -8,10 +8,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use geometry::Rig;
-use messages::journal::{Journal, Recovered};
-use messages::stats::StageStats;
+use messages::now_ns;
 use messages::topics::{self, Topic};
-use messages::{Publisher, now_ns};
+use runtime::Publisher;
+use runtime::journal::{Journal, Recovered};
+use runtime::stats::StageStats;
 
 use crate::live::{Latency, Live, LiveConfig, LiveReport, Output};
 
@@ -166,7 +167,7 @@ pub fn run(
         &[joints.listener(), detections.listener()],
         Some(QUIET_CHECK_EVERY),
         || -> Result<_> {
-            let cpu = messages::stats::StepStart::now();
+            let cpu = runtime::stats::StepStart::now();
             let mut ready = Vec::new();
             let mut received_ns = Vec::new();
             let mut frames_published_ns = Vec::new();

@@ -1,8 +1,8 @@
 //! `mirror_proc`: see `mirror_proc --help`.
 
 fn main() -> std::process::ExitCode {
-    messages::init_logging("mirror_proc");
+    runtime::init_logging("mirror_proc");
     let code = mirror_proc::cli::main();
-    messages::trace::flush();
+    runtime::trace::flush();
     code
 }

@@ -28,7 +28,7 @@ pub struct PlacementResult {
     /// The recording, if one was made.
     pub recording: Option<PathBuf>,
     /// Each stage process's latencies (HDR histograms) and counters.
-    pub stages: Vec<messages::stats::StageSummary>,
+    pub stages: Vec<runtime::stats::StageSummary>,
 }
 
 /// The errors of a calibration against the simulator's truth.

@@ -12,9 +12,10 @@ use anyhow::{Context, Result, bail};
 use formats::plan::PlannedPose;
 use geometry::Role;
 use geometry::sim::{Counts, Dataset, SimWorld, generate, nico_noise, nico_scene};
+use messages::CalibrationMsg;
 use messages::topics::{self, TopicId};
-use messages::{Bus, CalibrationMsg};
 use mirror_proc::live::LiveReport;
+use runtime::Bus;
 
 use crate::config::Config;
 use crate::report::{PlacementResult, TruthErrors};
@@ -501,7 +502,7 @@ impl Run {
         }
         if let Some(t) = &launch.trace_dir {
             let merged = dir.join("trace.json");
-            let events = messages::trace::merge(t, &merged)
+            let events = runtime::trace::merge(t, &merged)
                 .with_context(|| format!("{}: cannot merge the traces", t.display()))?;
             eprintln!(
                 "trace: {} ({events} events; open in https://ui.perfetto.dev)",
@@ -528,7 +529,7 @@ impl Run {
             restarts: stopped.restarts,
             seconds: started.elapsed().as_secs_f64(),
             recording: recording.filter(|_| recorded),
-            stages: messages::stats::read_all(&launch.stats_dir),
+            stages: runtime::stats::read_all(&launch.stats_dir),
         })
     }
 

@@ -37,7 +37,7 @@ pub fn realtime(priority: u8) -> Option<u8> {
 /// Tries `SCHED_FIFO` at `priority` on a thread of its own, which then ends:
 /// the launcher's own threads keep their scheduling.
 fn permitted(priority: u8) -> std::io::Result<()> {
-    std::thread::spawn(move || messages::realtime::fifo_this_thread(priority))
+    std::thread::spawn(move || runtime::realtime::fifo_this_thread(priority))
         .join()
         .unwrap_or_else(|_| Err(std::io::Error::other("the probe thread panicked")))
 }
@@ -49,11 +49,7 @@ mod tests {
     #[test]
     fn the_probe_leaves_the_launchers_own_scheduling_alone() {
         assert_eq!(realtime(0), None, "0 asks for nothing");
-        let policy = || {
-            messages::stats::Scheduling::of_this_thread()
-                .unwrap()
-                .policy
-        };
+        let policy = || runtime::stats::Scheduling::of_this_thread().unwrap().policy;
         let before = policy();
         let given = realtime(10);
         assert_eq!(policy(), before, "the probe changed the caller's policy");

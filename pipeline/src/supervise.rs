@@ -7,8 +7,8 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use messages::Bus;
 use messages::topics::TopicId;
+use runtime::Bus;
 
 use stages::{RestartPolicy, StageArgs, subscribers_of};
 
@@ -63,9 +63,9 @@ impl Launch {
         let binary = stage.program(&self.bin_dir);
         let mut command = Command::new(&binary);
         if let Some(dir) = &self.trace_dir {
-            command.env(messages::trace::TRACE_DIR_ENV, dir);
+            command.env(runtime::trace::TRACE_DIR_ENV, dir);
         }
-        command.env(messages::stats::STATS_DIR_ENV, &self.stats_dir);
+        command.env(runtime::stats::STATS_DIR_ENV, &self.stats_dir);
         let niceness = stage.niceness();
         let realtime = self
             .realtime
@@ -88,7 +88,7 @@ impl Launch {
                 }
                 // The child has one thread: this puts the whole process there.
                 if let Some(priority) = realtime {
-                    messages::realtime::fifo_this_thread(priority)?;
+                    runtime::realtime::fifo_this_thread(priority)?;
                 }
                 Ok(())
             });

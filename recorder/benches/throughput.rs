@@ -12,13 +12,13 @@ use std::path::Path;
 use std::time::Instant;
 
 use bytemuck::bytes_of;
-use camera_proc::render::Renderer;
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
 use geometry::sim::{Facing, SimWorld};
 use messages::{Encoding, FrameHeader, JointState};
 use recorder::channels::TopicId;
 use recorder::view::ViewBuilder;
 use recorder::writer::{Compression, Entry, WriterOptions, start};
+use renderer::Renderer;
 
 const W: u32 = 640;
 const H: u32 = 480;

@@ -7,8 +7,9 @@ use std::sync::atomic::Ordering;
 
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::ipc;
+use messages::now_ns;
 use messages::topics::TopicId;
-use messages::{AnySubscriber, Bus, BusError, now_ns};
+use runtime::{AnySubscriber, Bus, BusError};
 
 use crate::channels::log_time;
 use crate::writer::{Entry, RecorderHandle, WriterStopped};

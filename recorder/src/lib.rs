@@ -31,7 +31,7 @@ use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::Duration;
 
-use messages::Bus;
+use runtime::Bus;
 
 use crate::capture::Capture;
 use crate::live_view::LiveView;
@@ -90,7 +90,7 @@ pub fn record(
     // Only now: the writer (and live view) threads started above keep the
     // process's scheduling.
     if let Some(priority) = options.realtime_priority
-        && let Err(e) = messages::realtime::fifo_this_thread(priority)
+        && let Err(e) = runtime::realtime::fifo_this_thread(priority)
     {
         tracing::warn!(
             priority,

@@ -56,5 +56,5 @@ fn run(args: Args) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    messages::stage_main("recorder", || run(Args::parse()))
+    runtime::stage_main("recorder", || run(Args::parse()))
 }

@@ -3,14 +3,14 @@
 //! mirror stage, or detections and joint states to re-run the mirror stage.
 //!
 //! Replay creates every service of its prefix *lossless* (see
-//! [`messages::Bus::lossless`]) before any stage starts: a full subscriber
+//! [`runtime::Bus::lossless`]) before any stage starts: a full subscriber
 //! buffer then makes the publisher wait instead of dropping, all the way
 //! down the pipeline, so nothing is lost at any speed.
 
 use std::time::{Duration, Instant};
 
 use messages::topics::TopicId;
-use messages::{AnyPublisher, Bus};
+use runtime::{AnyPublisher, Bus};
 
 use crate::reader::Recording;
 
@@ -59,7 +59,7 @@ pub struct ReplayBus {
     topics: Vec<TopicId>,
     /// By [`TopicId::index`]; `None` for a topic not replayed.
     publishers: Vec<Option<AnyPublisher>>,
-    _services: messages::OpenServices,
+    _services: runtime::OpenServices,
 }
 
 impl ReplayBus {

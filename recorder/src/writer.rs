@@ -214,9 +214,9 @@ pub enum WriterError {
 
 impl RecordingSummary {
     /// Writes the recorder's counters where the launcher collects every
-    /// stage's (see [`messages::stats`]).
+    /// stage's (see [`runtime::stats`]).
     pub fn write_stats(&self) {
-        let mut stats = messages::stats::StageStats::new("recorder");
+        let mut stats = runtime::stats::StageStats::new("recorder");
         stats.count("frames_missed", self.frames_missed);
         stats.count("frames_dropped_queue_full", self.frames_dropped_queue_full);
         for (topic, n) in &self.messages {

@@ -8,12 +8,13 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use messages::topics::{FrameTopic, SmallTopic, TopicId, TopicVisitor};
-use messages::{Bus, Encoding, FrameHeader};
+use messages::{Encoding, FrameHeader};
 use recorder::capture::Capture;
 use recorder::reader::Recording;
 use recorder::replay::{Pace, ReplayBus, ReplayOptions, replay};
 use recorder::view::ViewBuilder;
 use recorder::writer::{WriterOptions, start};
+use runtime::Bus;
 
 fn prefix(name: &str) -> String {
     format!("test{}_{name}", std::process::id())

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use messages::Ports;
+use runtime::Ports;
 use serde::Serialize;
 
 use crate::{FixedPorts, Home, RestartPolicy, Side, Stage};

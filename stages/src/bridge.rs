@@ -3,8 +3,8 @@
 
 use std::time::Duration;
 
-use messages::Ports;
 use messages::topics::TopicId;
+use runtime::Ports;
 use serde::{Deserialize, Serialize};
 
 use crate::{Home, RestartPolicy, Side, Stage};

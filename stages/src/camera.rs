@@ -1,13 +1,13 @@
 //! `camera_proc sim`: the simulated head, rendering what it sees.
 
-use messages::Ports;
 use messages::topics::TopicId;
+use runtime::Ports;
 use serde::{Deserialize, Serialize};
 
 use crate::{FixedPorts, Home, RestartPolicy, Side, Stage};
 
 /// What the simulated camera's images look like: a named preset of
-/// `camera_proc::look::Look`.
+/// `renderer::look::Look`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum LookName {

@@ -5,8 +5,9 @@
 //! driver's declaration; a test fails when the checked-in file is stale.
 //! So the SDK hardcodes no service name, topic, type name, size or limit.
 
+use messages::service::{EVENT_SUFFIX, MAX_PORTS, SMALL_BUFFER};
 use messages::topics::TopicId;
-use messages::{EVENT_SUFFIX, MAX_JOINTS, MAX_PORTS, PoseGoal, Role, SMALL_BUFFER};
+use messages::{MAX_JOINTS, PoseGoal, Role};
 use serde_json::{Value, json};
 
 use crate::{FixedPorts, arm_driver::ArmDriver};
@@ -43,8 +44,8 @@ pub fn arm_driver() -> Value {
     json!({
         "generated_by": "cargo test -p stages (MIRROR_WRITE_CONTRACT=1 rewrites it); do not edit",
         "service": {
-            "name": messages::service_name("{prefix}", "{topic}"),
-            "event_name": messages::service_name("{prefix}", "{topic}") + EVENT_SUFFIX,
+            "name": messages::service::name("{prefix}", "{topic}"),
+            "event_name": messages::service::name("{prefix}", "{topic}") + EVENT_SUFFIX,
             "subscriber_buffer": SMALL_BUFFER,
             "history_size": 0,
             "max_ports": MAX_PORTS,

@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
-use messages::Ports;
 use messages::topics::TopicId;
+use runtime::Ports;
 use serde::Serialize;
 
 use crate::{FixedPorts, Home, RestartPolicy, Side, Stage};

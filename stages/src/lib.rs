@@ -38,7 +38,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use messages::topics::TopicId;
-use messages::{Bus, BusError, Ports};
+use runtime::{Bus, BusError, Ports};
 use serde::{Deserialize, Serialize};
 
 /// What a stage's exit means, and whether it is started again. (Which

@@ -4,8 +4,8 @@
 use std::path::PathBuf;
 
 use formats::calibration::Method;
-use messages::Ports;
 use messages::topics::TopicId;
+use runtime::Ports;
 use serde::Serialize;
 
 use crate::{FixedPorts, Home, RestartPolicy, Side, Stage};

@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use messages::Ports;
 use messages::topics::TopicId;
+use runtime::Ports;
 use serde::{Serialize, Serializer};
 
 use crate::{Home, RestartPolicy, Side, Stage};

@@ -1,7 +1,7 @@
 //! `tracker_proc run`: ArUco markers, printed and mirror-reversed, in stereo frames.
 
-use messages::Ports;
 use messages::topics::TopicId;
+use runtime::Ports;
 use serde::Serialize;
 
 use crate::{FixedPorts, Home, RestartPolicy, Stage};

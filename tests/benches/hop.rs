@@ -29,7 +29,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use messages::topics;
-use messages::{Bus, Encoding, FrameHeader, now_ns};
+use messages::{Encoding, FrameHeader, now_ns};
+use runtime::Bus;
 use serde_json::json;
 
 /// Payload sizes (both images) and each image's width and height.
@@ -126,7 +127,7 @@ fn measure(
                             arrivals.push((a.0, a.1, now_ns()));
                             arrived.store(true, Ordering::Relaxed);
                         }
-                        Ok::<_, messages::BusError>(if done.load(Ordering::Relaxed) {
+                        Ok::<_, runtime::BusError>(if done.load(Ordering::Relaxed) {
                             std::ops::ControlFlow::Break(())
                         } else {
                             std::ops::ControlFlow::Continue(())

@@ -10,7 +10,8 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use messages::topics;
-use messages::{Bus, JointPositions, PoseGoal, now_ns};
+use messages::{JointPositions, PoseGoal, now_ns};
+use runtime::Bus;
 use tests::python::python_with_driver_sdk;
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 

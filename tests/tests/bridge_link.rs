@@ -14,7 +14,8 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use messages::topics::{self, TopicId};
-use messages::{Bus, Encoding, FrameHeader, JointState};
+use messages::{Encoding, FrameHeader, JointState};
+use runtime::Bus;
 use tests::hosts::{TwoHosts, skip_root_tests};
 use tests::{KillOnDrop, free_port, stage_binaries, unique_prefix};
 use zenoh::Wait;

@@ -9,11 +9,12 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use camera_proc::source::{Captures, StereoSource};
-use messages::{Bus, MAX_MARKERS, topics};
+use messages::{MAX_MARKERS, topics};
 use opencv::core::{self, Mat, Size};
 use opencv::imgcodecs;
 use opencv::prelude::*;
 use opencv::videoio::VideoWriter;
+use runtime::Bus;
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
 use tracker_proc::Detector;
 

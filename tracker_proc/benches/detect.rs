@@ -16,8 +16,6 @@
 //! renderer's truth, and how far its centres are from it.
 //! Run: `cargo bench -p tracker_proc --bench detect`.
 
-use camera_proc::render::RenderTruth;
-use camera_proc::render::Renderer;
 use cpu_time::ProcessTime;
 use criterion::{Criterion, criterion_group, criterion_main};
 use geometry::sim::{Facing, SimWorld};
@@ -25,6 +23,8 @@ use geometry::sim::{nico_train_poses, sweep};
 use messages::{Encoding, FrameHeader, Marker, StereoDetections};
 use opencv::core::Mat;
 use opencv::prelude::*;
+use renderer::RenderTruth;
+use renderer::Renderer;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 use tracker_proc::{Detector, StockPass, Tracked, Tracker, diagonal_intersection};

@@ -63,14 +63,14 @@ fn run(prefix: &str, mirrored: bool, full_scan_every: u32) -> Result<()> {
     let bus = stages::bus_of::<stages::tracker::Tracker>(prefix)?;
     let frames = bus.frame_subscriber::<topics::Frames>()?;
     let publisher = bus.publisher::<topics::Detections>()?;
-    let mut stats = messages::stats::StageStats::new("tracker_proc");
+    let mut stats = runtime::stats::StageStats::new("tracker_proc");
     let mut count = 0u64;
     tracing::info!(mirrored, full_scan_every, "tracking");
     bus.wake()?
         .run(&[frames.listener()], None, || -> Result<_> {
             loop {
                 let received_ns = now_ns();
-                let cpu = messages::stats::StepStart::now();
+                let cpu = runtime::stats::StepStart::now();
                 // Detections go out first; the periodic full scan of the
                 // same frame follows, before the frame is let go.
                 let step = |h: &messages::FrameHeader, payload: &[u8]| -> Result<()> {
@@ -113,7 +113,7 @@ fn run(prefix: &str, mirrored: bool, full_scan_every: u32) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    messages::stage_main("tracker_proc", || match Args::parse().command {
+    runtime::stage_main("tracker_proc", || match Args::parse().command {
         Command::Run(args) => run(&args.prefix, !args.no_mirrored, args.full_scan_every),
         Command::Detect { images } => detect_files(&images),
     })

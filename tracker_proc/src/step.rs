@@ -3,10 +3,11 @@
 //! moves frames and detections between the bus and this step.
 
 use anyhow::Result;
-use messages::{CameraMarkers, FrameHeader, Rejections, StampOrder, StereoDetections};
+use messages::{CameraMarkers, FrameHeader, StereoDetections};
 use opencv::boxed_ref::BoxedRef;
 use opencv::core::{Mat, Rect};
 use opencv::prelude::*;
+use runtime::{Rejections, StampOrder};
 
 use crate::Detector;
 use crate::regions::RegionTracker;

@@ -13,11 +13,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use camera_proc::render::Renderer;
 use geometry::sim::{ARM_MARKER_ID, Counts, Facing, SimWorld, generate, nico_noise, nico_scene};
 use opencv::core::Mat;
 use opencv::imgcodecs;
 use opencv::prelude::*;
+use renderer::Renderer;
 use tracker_proc::real_set::{
     Found, MIRROR_SYMMETRIC_IDS, RealSet, Report, Variant, readings_near, stock_pass, table,
 };

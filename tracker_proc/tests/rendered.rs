@@ -1,12 +1,12 @@
 //! The tracker on images rendered by the simulated head, against the renderer's truth.
 
-use camera_proc::look::Look;
-use camera_proc::render::Renderer;
 use geometry::sim::{ARM_MARKER_ID, Facing, SimWorld};
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
 use nalgebra::Vector2;
 use opencv::core::{Mat, Scalar};
 use opencv::prelude::*;
+use renderer::Renderer;
+use renderer::look::Look;
 use tracker_proc::Detector;
 
 /// The arm's card alone, drawn without blur or noise.
@@ -18,11 +18,7 @@ fn sharp_renderer(mirror: usize) -> Renderer {
     Renderer::with_look(world, Look::sharp()).unwrap()
 }
 
-fn render(
-    renderer: &mut Renderer,
-    q: &[f64],
-    facing: Facing,
-) -> ([Mat; 2], camera_proc::render::RenderTruth) {
+fn render(renderer: &mut Renderer, q: &[f64], facing: Facing) -> ([Mat; 2], renderer::RenderTruth) {
     let ([l, r], truth) = renderer.render_pair(q, facing, 0).unwrap();
     let mat = |v: Vec<u8>| {
         Mat::from_slice(&v)

@@ -2,7 +2,7 @@
 //! mirror placement, the true encoder offsets, the marker cards (the arm's
 //! and a hidden object's) and where the cameras see each card. Pure
 //! geometry: the drawing itself, and what the image looks like, is
-//! `camera_proc::render`'s.
+//! `renderer`'s.
 
 use nalgebra::Vector3;
 

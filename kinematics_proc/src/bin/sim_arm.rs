@@ -26,5 +26,5 @@ fn run(args: Args) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    messages::stage_main("sim_arm", || run(Args::parse()))
+    runtime::stage_main("sim_arm", || run(Args::parse()))
 }

@@ -157,6 +157,6 @@ fn main() -> ExitCode {
             channels,
             json,
         }) => diff(&a, &b, channels.as_deref(), json),
-        None => messages::stage_main("replay", || run(cli.replay)),
+        None => runtime::stage_main("replay", || run(cli.replay)),
     }
 }

@@ -11,10 +11,11 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::*;
 use messages::topics::TopicId;
 use messages::{
-    Bus, CameraMarkers, Encoding, FrameHeader, JointPositions, JointState, Marker, MirrorSample,
-    Phase, PoseGoal, Role, StereoDetections, now_ns, topics,
+    CameraMarkers, Encoding, FrameHeader, JointPositions, JointState, Marker, MirrorSample, Phase,
+    PoseGoal, Role, StereoDetections, now_ns, topics,
 };
 use mirror_proc::calibrate::Method;
+use runtime::Bus;
 use serde_json::Value;
 use tests::report::{assert_plane_near_truth, stage_counter_summed_over_processes};
 use tests::{KillOnDrop, stage_binaries, unique_prefix};
@@ -252,7 +253,7 @@ fn a_mirror_stage_killed_twice_resumes_from_its_journal_and_loses_nothing() {
     assert!(recovered["revision"].as_u64().unwrap() >= 3, "{recovered}");
     assert_eq!(recovered["calibration_reproduced"], true, "{recovered}");
 
-    let journal = messages::journal::read(&dir.join("journal.mcap")).unwrap();
+    let journal = runtime::journal::read(&dir.join("journal.mcap")).unwrap();
     let journaled: Vec<MirrorSample> = journal.messages::<topics::Samples>().collect();
     let train: Vec<_> = journaled
         .iter()

@@ -31,8 +31,8 @@ use std::path::{Path, PathBuf};
 use mcap::records::{MessageHeader, Record};
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
-use crate::one_line;
-use crate::topics::{Layout, MESSAGE_ENCODING, SCHEMA_ENCODING, SmallTopic, TopicId};
+use messages::one_line;
+use messages::topics::{Layout, MESSAGE_ENCODING, SCHEMA_ENCODING, SmallTopic, TopicId};
 
 /// Largest record accepted when reading: a damaged length must not make the
 /// reader allocate without bound (journals hold small messages).
@@ -363,15 +363,15 @@ fn journaled_topic(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::topics::{self, Topic};
-    use crate::{CalibrationMsg, MirrorSample};
+    use messages::topics::{self, Topic};
+    use messages::{CalibrationMsg, MirrorSample};
 
     fn sample(pose: u64) -> MirrorSample {
         MirrorSample {
             pose,
             stamp_ns: 1_000 * pose as i64,
             dof: 4,
-            q: [0.25 * pose as f64; crate::MAX_JOINTS],
+            q: [0.25 * pose as f64; messages::MAX_JOINTS],
             ..Default::default()
         }
     }

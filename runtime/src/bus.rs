@@ -9,27 +9,9 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 
-use crate::topics::{FrameTopic, SmallTopic, TopicId, TopicVisitor};
-use crate::{FrameHeader, now_ns};
-
-/// Buffer of each subscriber of small messages: deep enough that nothing is
-/// lost while a stage is busy for seconds (a calibration, a slow start).
-pub const SMALL_BUFFER: usize = 1024;
-/// Buffer of each frame subscriber: old frames are overwritten, newest kept.
-pub const FRAME_BUFFER: usize = 4;
-/// Publishers, subscribers, notifiers and listeners a service takes at
-/// most (and twice as many nodes). Every process opening a service must
-/// give the same limits: iceoryx2 refuses a service opened with others.
-pub const MAX_PORTS: usize = 16;
-
-/// The iceoryx2 service of `topic` in pipeline `prefix`; its event service
-/// is this followed by [`EVENT_SUFFIX`].
-pub fn service_name(prefix: &str, topic: &str) -> String {
-    format!("mirror/{prefix}/{topic}")
-}
-
-/// What follows a topic's service name to name its event service.
-pub const EVENT_SUFFIX: &str = "/event";
+use messages::service::{EVENT_SUFFIX, FRAME_BUFFER, MAX_PORTS, SMALL_BUFFER};
+use messages::topics::{FrameTopic, SmallTopic, TopicId, TopicVisitor};
+use messages::{FrameHeader, now_ns};
 
 /// A failure of the shared-memory bus, by kind, so callers can tell a
 /// transport failure (iceoryx2's error kept as the source) from a mistake
@@ -178,7 +160,7 @@ impl Bus {
     }
 
     fn name(&self, topic: &str, suffix: &str) -> Result<ServiceName, BusError> {
-        let full = service_name(&self.prefix, topic) + suffix;
+        let full = messages::service::name(&self.prefix, topic) + suffix;
         ServiceName::new(&full).map_err(err(format!("service name {full}")))
     }
 
@@ -381,7 +363,7 @@ impl Bus {
     }
 
     /// Opens (creating if needed) the services of every topic of the
-    /// [`crate::topics`] table and keeps them for as long as the returned
+    /// [`messages::topics`] table and keeps them for as long as the returned
     /// value lives, so that they exist with this bus's settings before any
     /// stage starts, and outlive any stage: when a crashed stage is cleaned
     /// up, only its ports go, never a service another stage is about to

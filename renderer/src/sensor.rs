@@ -1,7 +1,7 @@
 //! What the image sensor and the camera's electronics add: vignetting,
 //! photon and read noise, and optional MJPEG compression.
 
-use anyhow::Result;
+use crate::Result;
 use opencv::core::{Mat, Vector};
 use opencv::imgcodecs;
 use opencv::prelude::*;

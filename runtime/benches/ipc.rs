@@ -27,7 +27,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use hdrhistogram::Histogram;
-use messages::{Bus, Encoding, FrameHeader, now_ns, topics};
+use messages::{Encoding, FrameHeader, now_ns, topics};
+use runtime::Bus;
 
 /// Header of a frame whose two images total `bytes`.
 fn header(seq: u64, bytes: usize) -> FrameHeader {
@@ -91,7 +92,7 @@ fn receiver_process(spec: &str) {
         bus.wake()
             .unwrap()
             .run(&[frames.listener()], Some(Duration::from_secs(10)), || {
-                Ok::<_, messages::BusError>(if take() {
+                Ok::<_, runtime::BusError>(if take() {
                     std::ops::ControlFlow::Continue(())
                 } else {
                     std::ops::ControlFlow::Break(())

@@ -26,7 +26,7 @@
 
 use std::collections::HashMap;
 
-use anyhow::{Context, Result, bail};
+use crate::{RenderError, Result};
 use geometry::Camera;
 use geometry::sim::{Facing, MARKER_MARGIN_MM, MARKER_SIZE_MM, SimWorld, card_corners};
 use nalgebra::{Matrix3, Vector2, Vector3};
@@ -192,7 +192,7 @@ impl Renderer {
 
     /// Prepares card textures and traces the still scene for each camera.
     pub fn with_look(world: SimWorld, look: Look) -> Result<Self> {
-        look.validate().map_err(anyhow::Error::msg)?;
+        look.validate()?;
         let dictionary =
             aruco::get_predefined_dictionary(aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50)?;
         let margin_px =
@@ -200,7 +200,7 @@ impl Renderer {
         let mut cards = HashMap::new();
         for id in std::iter::once(world.arm_marker).chain(world.fixed.iter().map(|f| f.id)) {
             if id >= 50 {
-                bail!("marker id {id} is not in DICT_4X4_50");
+                return Err(RenderError::UnknownMarker(id));
             }
             let mut code = Mat::default();
             aruco::draw_marker(&dictionary, id as i32, TEXTURE_MARKER_PX, &mut code, 1)?;
@@ -308,12 +308,7 @@ impl Renderer {
         left: &mut [u8],
         right: &mut [u8],
     ) -> Result<RenderTruth> {
-        let arm = self
-            .world
-            .rig
-            .arm
-            .as_ref()
-            .context("the simulated world has no arm")?;
+        let arm = self.world.rig.arm.as_ref().ok_or(RenderError::NoArm)?;
         let end_effector = arm.end_effector(q, &self.world.true_offsets)?;
         let mut truth = RenderTruth {
             end_effector: Some(end_effector),
@@ -404,10 +399,7 @@ impl Renderer {
             let r = s.spawn(|| draw(1, right, last_right));
             (draw(0, left, last_left), r.join())
         });
-        let views = [
-            l?,
-            r.map_err(|_| anyhow::anyhow!("drawing the right view panicked"))??,
-        ];
+        let views = [l?, r.map_err(|_| RenderError::Panicked("right"))??];
         self.last_drawn = Some(LastDrawn {
             open,
             close,
@@ -442,7 +434,7 @@ impl Renderer {
         if open == close {
             return Ok(1);
         }
-        let arm = self.world.rig.arm.as_ref().context("no arm")?;
+        let arm = self.world.rig.arm.as_ref().ok_or(RenderError::NoArm)?;
         let a = self.world.seen_card(
             arm.end_effector(open, &self.world.true_offsets)?,
             faces,
@@ -466,7 +458,7 @@ impl Renderer {
     /// links), or with `q` `None` for the fixed cards; directly and in the
     /// glass, with the glass's ghost.
     fn items(&self, q: Option<&[f64]>, arm_faces: Facing) -> Result<Vec<Item>> {
-        let arm = self.world.rig.arm.as_ref().context("no arm")?;
+        let arm = self.world.rig.arm.as_ref().ok_or(RenderError::NoArm)?;
         let offsets = &self.world.true_offsets;
         let cards = match q {
             Some(q) => vec![(
@@ -775,7 +767,7 @@ impl Renderer {
         alpha: &mut [f32],
     ) -> Result<()> {
         let Shape::Card { id, corners } = item.shape else {
-            bail!("only cards are drawn from a texture");
+            return Err(RenderError::Internal("only cards are drawn from a texture"));
         };
         let cam = self.world.rig.cameras[k];
         // The card's pixels within the region.
@@ -787,10 +779,9 @@ impl Renderer {
             return Ok(());
         }
         let side = self.card_side(id, &cam, &corners)?;
-        let texture = self
-            .shrunk
-            .get(&(id, side))
-            .context("a card's texture drawn before it was shrunk")?;
+        let texture = self.shrunk.get(&(id, side)).ok_or(RenderError::Internal(
+            "a card's texture drawn before it was shrunk",
+        ))?;
         let h = texel_from_normalized(&cam, &corners, texture.width, texture.height)?;
         let view = &self.views[k];
         let width = cam.intrinsics.width as usize;
@@ -840,7 +831,10 @@ impl Renderer {
     /// edges; returns the side it has in the cache.
     fn shrink_card(&mut self, id: u32, cam: &Camera, corners: &[Vector3<f64>; 4]) -> Result<i32> {
         let side = self.card_side(id, cam, corners)?;
-        let card = self.cards.get(&id).context("texture per id")?;
+        let card = self
+            .cards
+            .get(&id)
+            .ok_or(RenderError::Internal("a card without its texture"))?;
         let full = card.cols();
         if !self.shrunk.contains_key(&(id, side)) {
             let mut small = Mat::default();
@@ -866,7 +860,10 @@ impl Renderer {
     /// The side of the card's texture drawn for these corners: about the
     /// card's size on screen, the full texture when near it.
     fn card_side(&self, id: u32, cam: &Camera, corners: &[Vector3<f64>; 4]) -> Result<i32> {
-        let card = self.cards.get(&id).context("texture per id")?;
+        let card = self
+            .cards
+            .get(&id)
+            .ok_or(RenderError::Internal("a card without its texture"))?;
         let px: Vec<Vector2<f64>> = corners.iter().filter_map(|c| cam.project(c).ok()).collect();
         let on_screen = (0..px.len())
             .map(|i| (px[i] - px[(i + 1) % px.len()]).norm())
@@ -1211,7 +1208,9 @@ fn polygon_mask(
                 )?;
             }
         }
-        Shape::Card { .. } => bail!("cards are drawn from their texture"),
+        Shape::Card { .. } => {
+            return Err(RenderError::Internal("cards are drawn from their texture"));
+        }
     }
     Ok(mask)
 }

@@ -7,7 +7,7 @@
 //! millimetres. Light is a ceiling lamp, a window on the left and ambient
 //! light; there are no shadows.
 
-use anyhow::Result;
+use crate::Result;
 use geometry::Camera;
 use geometry::sim::{Mirror, ROBOT_BODY_MM, line_through_box};
 use nalgebra::{Vector2, Vector3};

@@ -9,8 +9,8 @@ use std::io::Write;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use messages::MirrorSample;
-use messages::journal::Journal;
 use messages::topics::{self, Topic};
+use runtime::journal::Journal;
 
 fn bench(c: &mut Criterion) {
     let dir = tempfile::tempdir().unwrap();

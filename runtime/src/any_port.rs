@@ -5,8 +5,10 @@
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::ipc;
 
-use crate::topics::{FrameTopic, Message, SmallTopic, TopicId, TopicVisitor};
-use crate::{Bus, BusError, FrameHeader, FramePublisher, FrameSubscriber, Publisher, Subscriber};
+use messages::FrameHeader;
+use messages::topics::{FrameTopic, Message, SmallTopic, TopicId, TopicVisitor};
+
+use crate::{Bus, BusError, FramePublisher, FrameSubscriber, Publisher, Subscriber};
 
 trait Republish {
     fn publish(&self, message: &Message<'_>) -> Result<(), BusError>;

@@ -132,7 +132,7 @@ impl Look {
     }
 
     /// Checks the parameters; the error names the first one out of range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), crate::RenderError> {
         let fraction = |v: f64| (0.0..=1.0).contains(&v);
         let checks: [(&str, bool); 11] = [
             (
@@ -172,7 +172,7 @@ impl Look {
             ),
         ];
         match checks.iter().find(|(_, ok)| !ok) {
-            Some((name, _)) => Err(format!("look parameter {name} is out of range")),
+            Some((name, _)) => Err(crate::RenderError::BadLook(name)),
             None => Ok(()),
         }
     }
@@ -194,7 +194,7 @@ mod tests {
             ..Look::realistic()
         };
         assert_eq!(
-            bad.validate().unwrap_err(),
+            bad.validate().unwrap_err().to_string(),
             "look parameter reflectance is out of range"
         );
     }

@@ -1,9 +1,9 @@
 //! Rendering time per stereo frame by look, over the benchmark's poses.
 //! Run: `cargo run --release -p camera_proc --example render_cost`.
 
-use camera_proc::look::LookName;
-use camera_proc::render::Renderer;
 use geometry::sim::{Counts, Facing, SimWorld, generate, nico_noise, nico_scene};
+use renderer::Renderer;
+use renderer::look::LookName;
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {
@@ -20,7 +20,7 @@ fn main() -> anyhow::Result<()> {
     )?;
     for look in LookName::ALL {
         let mut renderer =
-            Renderer::with_look(SimWorld::nico(0)?, camera_proc::look::Look::named(look))?;
+            Renderer::with_look(SimWorld::nico(0)?, renderer::look::Look::named(look))?;
         let t = Instant::now();
         let mut n = 0;
         for round in 0..5 {

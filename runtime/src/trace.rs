@@ -99,7 +99,7 @@ impl ChromeLayer {
 impl<S: Subscriber + for<'a> LookupSpan<'a>> Layer<S> for ChromeLayer {
     fn on_new_span(&self, attrs: &Attributes<'_>, id: &Id, ctx: Context<'_, S>) {
         let mut data = SpanData {
-            start_ns: crate::now_ns(),
+            start_ns: messages::now_ns(),
             start_cpu: crate::stats::thread_cpu(),
             args: serde_json::Map::new(),
         };
@@ -118,7 +118,7 @@ impl<S: Subscriber + for<'a> LookupSpan<'a>> Layer<S> for ChromeLayer {
     }
 
     fn on_close(&self, id: Id, ctx: Context<'_, S>) {
-        let end = crate::now_ns();
+        let end = messages::now_ns();
         let Some(span) = ctx.span(&id) else { return };
         let extensions = span.extensions();
         let Some(data) = extensions.get::<SpanData>() else {
