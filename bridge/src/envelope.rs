@@ -18,7 +18,7 @@
 //! Nothing from the network is trusted: every field is checked, and a
 //! message whose layout is not this side's is refused with both names.
 
-use messages::topics::{Message, TopicId};
+use messages::topics::{DecodeError, Message, TopicId};
 
 /// The envelope's first bytes; the digit is the envelope's version.
 pub const MAGIC: &[u8; 4] = b"MRB2";
@@ -91,6 +91,69 @@ pub struct Opened<'a> {
     pub message: Message<'a>,
 }
 
+/// Why an envelope does not open; its text is one line naming what is
+/// wrong (it is logged).
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    /// The bytes end before one of the envelope's fields.
+    #[error("{len} bytes end before the {field} ({need} bytes)")]
+    Truncated {
+        /// Bytes of the envelope.
+        len: usize,
+        /// The field.
+        field: &'static str,
+        /// Bytes of the field.
+        need: usize,
+    },
+    /// Not [`MAGIC`].
+    #[error("not a pipeline bridge message (bad magic)")]
+    BadMagic,
+    /// The layout's name is not UTF-8.
+    #[error("the layout name is not UTF-8")]
+    LayoutNameNotUtf8,
+    /// The sender's layout is not this side's.
+    #[error(
+        "layout mismatch on {}: the sender's is {theirs}, this side's is {ours}",
+        .topic.name()
+    )]
+    LayoutMismatch {
+        /// The topic it came on.
+        topic: TopicId,
+        /// The sender's layout (its versioned type name).
+        theirs: String,
+        /// This side's.
+        ours: String,
+    },
+    /// The sender's id is empty or not hex digits.
+    #[error("the sender's id is not a zenoh id (hex digits)")]
+    BadSender,
+    /// Bytes after the message.
+    #[error("{0} bytes after the message")]
+    Trailing(usize),
+    /// A compressed message that does not decompress (within
+    /// [`MAX_MESSAGE`]).
+    #[error("{} message does not decompress: {error}", .topic.name())]
+    Decompress {
+        /// The topic it came on.
+        topic: TopicId,
+        /// zstd's error.
+        error: std::io::Error,
+    },
+    /// An encoding this side does not know.
+    #[error("unknown encoding {0}")]
+    UnknownEncoding(u8),
+    /// The message does not decode as its layout.
+    #[error("{} of layout {layout}: {error}", .topic.name())]
+    Decode {
+        /// The topic it came on.
+        topic: TopicId,
+        /// Its layout (the versioned type name).
+        layout: String,
+        /// Why.
+        error: DecodeError,
+    },
+}
+
 /// Opens an envelope that came on `topic`'s key, decoding into `scratch`
 /// if the message was compressed; the error is one line naming what is
 /// wrong.
@@ -98,56 +161,61 @@ pub fn open<'a>(
     topic: TopicId,
     bytes: &'a [u8],
     scratch: &'a mut Vec<u8>,
-) -> Result<Opened<'a>, String> {
+) -> Result<Opened<'a>, OpenError> {
     let mut rest = bytes;
-    let mut take = |n: usize, what: &str| -> Result<&[u8], String> {
+    let mut take = |n: usize, what: &'static str| -> Result<&[u8], OpenError> {
         if rest.len() < n {
-            return Err(format!(
-                "{} bytes end before the {what} ({n} bytes)",
-                bytes.len()
-            ));
+            return Err(OpenError::Truncated {
+                len: bytes.len(),
+                field: what,
+                need: n,
+            });
         }
         let (head, tail) = rest.split_at(n);
         rest = tail;
         Ok(head)
     };
     if take(4, "magic")? != MAGIC {
-        return Err("not a pipeline bridge message (bad magic)".into());
+        return Err(OpenError::BadMagic);
     }
     let name_len = take(1, "layout name's length")?[0] as usize;
     let name = std::str::from_utf8(take(name_len, "layout name")?)
-        .map_err(|_| "the layout name is not UTF-8".to_string())?;
+        .map_err(|_| OpenError::LayoutNameNotUtf8)?;
     let ours = topic.layout().type_name;
     if name != ours {
-        return Err(format!(
-            "layout mismatch on {}: the sender's is {name}, this side's is {ours}",
-            topic.name()
-        ));
+        return Err(OpenError::LayoutMismatch {
+            topic,
+            theirs: name.to_string(),
+            ours,
+        });
     }
     let sender_len = take(1, "sender's length")?[0] as usize;
     let sender = std::str::from_utf8(take(sender_len, "sender")?)
         .ok()
         .filter(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_hexdigit()))
-        .ok_or_else(|| "the sender's id is not a zenoh id (hex digits)".to_string())?;
+        .ok_or(OpenError::BadSender)?;
     let seq = u64::from_le_bytes(take(8, "sequence number")?.try_into().expect("8 bytes"));
     let sent_ns = i64::from_le_bytes(take(8, "send time")?.try_into().expect("8 bytes"));
     let code = take(1, "encoding")?[0];
     let len = u32::from_le_bytes(take(4, "length")?.try_into().expect("4 bytes")) as usize;
     let message = take(len, "message")?;
     if !rest.is_empty() {
-        return Err(format!("{} bytes after the message", rest.len()));
+        return Err(OpenError::Trailing(rest.len()));
     }
     let message = match code {
         0 => message,
         1 => {
             *scratch = zstd::bulk::decompress(message, MAX_MESSAGE)
-                .map_err(|e| format!("{} message does not decompress: {e}", topic.name()))?;
+                .map_err(|error| OpenError::Decompress { topic, error })?;
             &scratch[..]
         }
-        other => return Err(format!("unknown encoding {other}")),
+        other => return Err(OpenError::UnknownEncoding(other)),
     };
-    let message = Message::decode(topic, message)
-        .map_err(|e| format!("{} of layout {ours}: {e}", topic.name()))?;
+    let message = Message::decode(topic, message).map_err(|error| OpenError::Decode {
+        topic,
+        layout: ours,
+        error,
+    })?;
     Ok(Opened {
         from: From {
             sender,
@@ -214,7 +282,11 @@ mod tests {
 
     #[test]
     fn every_malformed_envelope_is_refused_in_one_line() {
-        let open = |bytes: &[u8]| open(TopicId::JointState, bytes, &mut Vec::new()).map(|_| ());
+        let open = |bytes: &[u8]| {
+            open(TopicId::JointState, bytes, &mut Vec::new())
+                .map(|_| ())
+                .map_err(|e| e.to_string())
+        };
         let js = joint_state();
         let good = seal(
             TopicId::JointState,
@@ -277,7 +349,9 @@ mod tests {
             Encoding::Raw,
             bytemuck::bytes_of(&joint_state()),
         );
-        let e = open(TopicId::Samples, &bytes, &mut Vec::new()).unwrap_err();
+        let e = open(TopicId::Samples, &bytes, &mut Vec::new())
+            .unwrap_err()
+            .to_string();
         let ours = TopicId::Samples.layout().type_name;
         let theirs = TopicId::JointState.layout().type_name;
         assert!(e.contains(&ours) && e.contains(&theirs), "{e}");

@@ -29,7 +29,7 @@ fn run(args: Args) -> Result<()> {
     let stop = AtomicBool::new(false);
     let result = bridge::run(&options, &counters, &stop);
     counters.into_stats(&options).finish();
-    result
+    result.map_err(anyhow::Error::from)
 }
 
 fn main() -> ExitCode {

@@ -79,8 +79,8 @@ enum Source {
     },
 }
 
-fn main() -> ExitCode {
-    runtime::stage_main("camera_proc", || match Args::parse().source {
+fn run(args: Args) -> anyhow::Result<()> {
+    match args.source {
         Source::Sim(stages::camera::Args {
             prefix,
             mirror,
@@ -93,7 +93,7 @@ fn main() -> ExitCode {
                 jpeg_quality: mjpeg,
                 ..renderer::look::Look::named(look)
             };
-            stage::run_sim(&prefix, mirror, fps, tail_frames, look)
+            stage::run_sim(&prefix, mirror, fps, tail_frames, look)?;
         }
         Source::Files {
             prefix,
@@ -105,7 +105,7 @@ fn main() -> ExitCode {
                 Some(subscribers) => Pace::Lockstep { subscribers },
                 None => Pace::Rate(fps),
             };
-            ImagePairs::open(&dir).and_then(|s| stage::run_source(&prefix, s, pace))
+            stage::run_source(&prefix, ImagePairs::open(&dir)?, pace)?;
         }
         Source::Device {
             prefix,
@@ -115,28 +115,26 @@ fn main() -> ExitCode {
             lockstep,
         } => {
             let captures = match right {
-                Some(r) => Captures::pair(&source, &r),
-                None => Captures::side_by_side(&source),
+                Some(r) => Captures::pair(&source, &r)?,
+                None => Captures::side_by_side(&source)?,
             };
-            captures.and_then(|c| {
-                if let Some(f) = fps
-                    && !(f > 0.0 && f <= 1000.0)
-                {
-                    anyhow::bail!("--fps must be in (0, 1000]");
-                }
-                // A file plays at --fps or its own rate, or in lockstep; a
-                // device at its own rate.
-                let pace = match (c.file_rate(), lockstep) {
-                    (None, Some(_)) => anyhow::bail!(
-                        "--lockstep needs a video file: a live device delivers at its own rate"
-                    ),
-                    (Some(_), Some(subscribers)) => Pace::Lockstep { subscribers },
-                    (Some(own), None) => Pace::Rate(fps.unwrap_or(own)),
-                    (None, None) => Pace::AsDelivered,
-                };
-                tracing::info!(?pace, "playing");
-                stage::run_source(&prefix, c, pace)
-            })
+            if let Some(f) = fps
+                && !(f > 0.0 && f <= 1000.0)
+            {
+                anyhow::bail!("--fps must be in (0, 1000]");
+            }
+            // A file plays at --fps or its own rate, or in lockstep; a
+            // device at its own rate.
+            let pace = match (captures.file_rate(), lockstep) {
+                (None, Some(_)) => anyhow::bail!(
+                    "--lockstep needs a video file: a live device delivers at its own rate"
+                ),
+                (Some(_), Some(subscribers)) => Pace::Lockstep { subscribers },
+                (Some(own), None) => Pace::Rate(fps.unwrap_or(own)),
+                (None, None) => Pace::AsDelivered,
+            };
+            tracing::info!(?pace, "playing");
+            stage::run_source(&prefix, captures, pace)?;
         }
         Source::Snapshot {
             mirror,
@@ -150,6 +148,11 @@ fn main() -> ExitCode {
             if direct { Facing::Head } else { Facing::Mirror },
             look,
             &out,
-        ),
-    })
+        )?,
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    runtime::stage_main("camera_proc", || run(Args::parse()))
 }

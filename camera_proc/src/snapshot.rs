@@ -2,28 +2,33 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
 use opencv::core::{Mat, Vector};
 
 use geometry::sim::{Facing, SimWorld};
 use renderer::Renderer;
 use renderer::look::{Look, LookName};
 
+use crate::CameraError;
+
 /// Renders one stereo pair of the simulated scene in `look` with the arm at `q`
 /// (encoder readings, rad) to `OUT_left.png` and `OUT_right.png`, and
-/// prints which markers each image shows.
+/// prints which markers each image shows. Joint angles that do not fit
+/// the simulated arm are a [`CameraError::JointCount`].
 pub fn snapshot(
     mirror: usize,
     q: &[f64],
     facing: Facing,
     look: LookName,
     out: &Path,
-) -> Result<()> {
+) -> Result<(), CameraError> {
     let world = SimWorld::nico(mirror)?;
     let intr = world.rig.cameras[0].intrinsics;
     let dof = world.rig.arm.as_ref().map_or(0, |a| a.dof());
     if q.len() != dof {
-        bail!("--q: {} joint angles given, the arm has {dof}", q.len());
+        return Err(CameraError::JointCount {
+            given: q.len(),
+            dof,
+        });
     }
     let mut renderer = Renderer::with_look(world, Look::named(look))?;
     let n = (intr.width * intr.height) as usize;
@@ -39,8 +44,12 @@ pub fn snapshot(
             intr.width as i32,
             data.as_mut_slice(),
         )?;
-        opencv::imgcodecs::imwrite(&path, &mat, &Vector::new())
-            .with_context(|| format!("{}: cannot write", path.display()))?;
+        opencv::imgcodecs::imwrite(&path, &mat, &Vector::new()).map_err(|source| {
+            CameraError::Write {
+                path: path.clone(),
+                source,
+            }
+        })?;
         let drawn: Vec<String> = markers
             .iter()
             .map(|m| format!("id {}{}", m.0, if m.1 { " (mirrored)" } else { "" }))

@@ -2,9 +2,10 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
 use opencv::prelude::*;
 use opencv::{core, imgcodecs, imgproc, videoio};
+
+use crate::CameraError;
 
 /// A source of stereo mono8 image pairs.
 pub trait StereoSource {
@@ -12,25 +13,30 @@ pub trait StereoSource {
     fn size(&self) -> (u32, u32);
     /// Reads the next pair into `left` and `right` (width x height bytes each);
     /// `false` at the end.
-    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool>;
+    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool, CameraError>;
 }
 
 /// Copies a decoded image (any depth/channels) as mono8 into `out`.
-fn to_mono_into(image: &Mat, out: &mut [u8], what: &str) -> Result<()> {
+fn to_mono_into(image: &Mat, out: &mut [u8], what: &str) -> Result<(), CameraError> {
     let mut grey = Mat::default();
     match image.channels() {
         1 => grey = image.clone(),
         3 => imgproc::cvt_color(image, &mut grey, imgproc::COLOR_BGR2GRAY, 0)?,
         4 => imgproc::cvt_color(image, &mut grey, imgproc::COLOR_BGRA2GRAY, 0)?,
-        c => bail!("{what}: {c} channels not supported"),
+        channels => {
+            return Err(CameraError::Channels {
+                what: what.to_string(),
+                channels,
+            });
+        }
     }
     let bytes = grey.data_bytes()?;
     if bytes.len() != out.len() {
-        bail!(
-            "{what}: image has {} bytes, expected {}",
-            bytes.len(),
-            out.len()
-        );
+        return Err(CameraError::ImageBytes {
+            what: what.to_string(),
+            bytes: bytes.len(),
+            expected: out.len(),
+        });
     }
     out.copy_from_slice(bytes);
     Ok(())
@@ -46,12 +52,14 @@ pub struct ImagePairs {
 
 impl ImagePairs {
     /// Lists the pairs of `dir` and reads the first to learn the size.
-    pub fn open(dir: &Path) -> Result<Self> {
+    pub fn open(dir: &Path) -> Result<Self, CameraError> {
+        let cannot_list = |source| CameraError::List {
+            dir: dir.to_path_buf(),
+            source,
+        };
         let mut lefts = Vec::new();
-        for entry in
-            std::fs::read_dir(dir).with_context(|| format!("{}: cannot list", dir.display()))?
-        {
-            let path = entry?.path();
+        for entry in std::fs::read_dir(dir).map_err(cannot_list)? {
+            let path = entry.map_err(cannot_list)?.path();
             let name = path
                 .file_name()
                 .and_then(|n| n.to_str())
@@ -60,22 +68,20 @@ impl ImagePairs {
             if name.contains("left") {
                 let right = path.with_file_name(name.replacen("left", "right", 1));
                 if !right.exists() {
-                    bail!(
-                        "{}: no matching right image {}",
-                        path.display(),
-                        right.display()
-                    );
+                    return Err(CameraError::NoRightImage { left: path, right });
                 }
                 lefts.push((path, right));
             }
         }
         lefts.sort();
-        let first = lefts
-            .first()
-            .with_context(|| format!("{}: no `*left*` images", dir.display()))?;
+        let first = lefts.first().ok_or_else(|| CameraError::NoLeftImages {
+            dir: dir.to_path_buf(),
+        })?;
         let img = imgcodecs::imread(&first.0, imgcodecs::IMREAD_GRAYSCALE)?;
         if img.empty() {
-            bail!("{}: cannot decode", first.0.display());
+            return Err(CameraError::Undecodable {
+                path: first.0.clone(),
+            });
         }
         Ok(Self {
             size: (img.cols() as u32, img.rows() as u32),
@@ -90,7 +96,7 @@ impl StereoSource for ImagePairs {
         self.size
     }
 
-    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool> {
+    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool, CameraError> {
         let Some((l, r)) = self.pairs.get(self.next).cloned() else {
             return Ok(false);
         };
@@ -98,15 +104,14 @@ impl StereoSource for ImagePairs {
         for (path, out) in [(&l, left), (&r, right)] {
             let img = imgcodecs::imread(path, imgcodecs::IMREAD_UNCHANGED)?;
             if img.empty() {
-                bail!("{}: cannot decode", path.display());
+                return Err(CameraError::Undecodable { path: path.clone() });
             }
             if (img.cols() as u32, img.rows() as u32) != self.size {
-                bail!(
-                    "{}: size {}x{} differs from the first pair's",
-                    path.display(),
-                    img.cols(),
-                    img.rows()
-                );
+                return Err(CameraError::SizeDiffers {
+                    path: path.clone(),
+                    width: img.cols(),
+                    height: img.rows(),
+                });
             }
             to_mono_into(&img, out, &path.display().to_string())?;
         }
@@ -129,10 +134,12 @@ pub struct CaptureInfo {
     pub frames: Option<u64>,
 }
 
-fn open_capture(source: &str) -> Result<(videoio::VideoCapture, CaptureInfo)> {
+fn open_capture(source: &str) -> Result<(videoio::VideoCapture, CaptureInfo), CameraError> {
     let cap = videoio::VideoCapture::from_file(source, videoio::CAP_ANY)?;
     if !cap.is_opened()? {
-        bail!("{source}: cannot open");
+        return Err(CameraError::CannotOpen {
+            capture: source.to_string(),
+        });
     }
     let fourcc = cap.get(videoio::CAP_PROP_FOURCC)? as u32;
     let codec: String = fourcc
@@ -172,13 +179,13 @@ pub struct Captures {
 
 impl Captures {
     /// Opens a video file or device path (`/dev/video0`) holding side-by-side stereo.
-    pub fn side_by_side(source: &str) -> Result<Self> {
+    pub fn side_by_side(source: &str) -> Result<Self, CameraError> {
         let (cap, info) = open_capture(source)?;
         if info.width < 2 || info.width % 2 != 0 {
-            bail!(
-                "{source}: {} px wide, not two side-by-side images",
-                info.width
-            );
+            return Err(CameraError::NotSideBySide {
+                capture: source.to_string(),
+                width: info.width,
+            });
         }
         Ok(Self {
             captures: vec![cap],
@@ -189,17 +196,16 @@ impl Captures {
     }
 
     /// Opens two devices or files, left then right.
-    pub fn pair(left: &str, right: &str) -> Result<Self> {
+    pub fn pair(left: &str, right: &str) -> Result<Self, CameraError> {
         let (l, info) = open_capture(left)?;
         let (r, right_info) = open_capture(right)?;
         if (right_info.width, right_info.height) != (info.width, info.height) {
-            bail!(
-                "{right}: {}x{} px, the left camera {left} gives {}x{}",
-                right_info.width,
-                right_info.height,
-                info.width,
-                info.height
-            );
+            return Err(CameraError::PairSizes {
+                left: left.to_string(),
+                right: right.to_string(),
+                left_size: (info.width, info.height),
+                right_size: (right_info.width, right_info.height),
+            });
         }
         Ok(Self {
             captures: vec![l, r],
@@ -228,7 +234,7 @@ impl StereoSource for Captures {
         self.size
     }
 
-    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool> {
+    fn next_into(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<bool, CameraError> {
         let mut frames = Vec::new();
         for cap in &mut self.captures {
             let mut m = Mat::default();

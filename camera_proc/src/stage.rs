@@ -4,10 +4,10 @@
 use std::ops::ControlFlow;
 use std::time::Duration;
 
-use anyhow::{Result, bail};
 use messages::{Encoding, FrameHeader, JointPositions, Role, now_ns, topics};
 use runtime::Bus;
 
+use crate::CameraError;
 use crate::clock::FrameClock;
 use crate::source::StereoSource;
 use geometry::sim::{Facing, SimWorld};
@@ -51,9 +51,16 @@ fn joint_velocity(last: &JointPositions, now: &JointPositions) -> Option<Vec<f64
 /// The simulated head: renders what it sees at `fps`, the arm where the
 /// arm driver's joint positions put it (its card turned as the current pose
 /// goal's role says), until `tail_frames` after the goal that ends the plan.
-pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32, look: Look) -> Result<()> {
+/// A rate outside (0, 1000] Hz is a [`CameraError::BadFps`].
+pub fn run_sim(
+    prefix: &str,
+    mirror: usize,
+    fps: f64,
+    tail_frames: u32,
+    look: Look,
+) -> Result<(), CameraError> {
     if !(fps > 0.0 && fps <= 1000.0) {
-        bail!("--fps must be in (0, 1000]");
+        return Err(CameraError::BadFps { fps });
     }
     let world = SimWorld::nico(mirror)?;
     let intr = world.rig.cameras[0].intrinsics;
@@ -76,12 +83,18 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32, look: Lo
     tracing::info!(mirror, fps, ?look, "rendering the simulated head");
     // A fine tick keeps frames within a millisecond of their schedule.
     let tick = Duration::from_nanos(clock.period_ns() as u64).min(Duration::from_millis(1));
-    bus.wake()?
-        .run(&[joints.listener()], Some(tick), || -> Result<_> {
+    bus.wake()?.run(
+        &[joints.listener()],
+        Some(tick),
+        || -> Result<_, CameraError> {
             while let Some(s) = joints.receive()? {
                 // Bad positions would render nonsense or fail the render:
                 // dropped, and the last good pose kept.
-                match s.fault(dof).map_or_else(|| order.check(s.stamp_ns), Err) {
+                let checked = s.fault(dof).map_or_else(
+                    || order.check(s.stamp_ns).map_err(|behind| behind.to_string()),
+                    Err,
+                );
+                match checked {
                     Err(why) => rejections.reject("joint positions message", s.seq, &why),
                     Ok(()) => {
                         velocity = latest.as_ref().and_then(|last| joint_velocity(last, &s));
@@ -135,7 +148,8 @@ pub fn run_sim(prefix: &str, mirror: usize, fps: f64, tail_frames: u32, look: Lo
             } else {
                 ControlFlow::Break(())
             })
-        })?;
+        },
+    )?;
     stats.count("frames", seq);
     stats.count("frames_late", clock.late());
     stats.count("arm_messages_rejected", rejections.count());
@@ -165,7 +179,11 @@ pub enum Pace {
 const LOCKSTEP_WAIT: Duration = Duration::from_secs(30);
 
 /// Real footage: publishes `source`'s pairs as `pace` says, until it ends.
-pub fn run_source(prefix: &str, mut source: impl StereoSource, pace: Pace) -> Result<()> {
+pub fn run_source(
+    prefix: &str,
+    mut source: impl StereoSource,
+    pace: Pace,
+) -> Result<(), CameraError> {
     let (w, h) = source.size();
     let mut bus = Bus::new(prefix, "camera_proc")?;
     if let Pace::Lockstep { .. } = pace {
@@ -189,19 +207,20 @@ pub fn run_source(prefix: &str, mut source: impl StereoSource, pace: Pace) -> Re
         // Publishing waits for room; the tick only keeps the loop turning.
         Pace::Lockstep { .. } => Duration::from_micros(50),
     };
-    bus.wake()?.run(&[], Some(tick), || -> Result<_> {
-        let cpu = runtime::stats::StepStart::now();
-        let more = frames.publish(header(seq, w, h), |left, right| {
-            source.next_into(left, right)
-        })??;
-        stats.cpu_step(cpu);
-        Ok(if more {
-            seq += 1;
-            ControlFlow::Continue(())
-        } else {
-            ControlFlow::Break(())
-        })
-    })?;
+    bus.wake()?
+        .run(&[], Some(tick), || -> Result<_, CameraError> {
+            let cpu = runtime::stats::StepStart::now();
+            let more = frames.publish(header(seq, w, h), |left, right| {
+                source.next_into(left, right)
+            })??;
+            stats.cpu_step(cpu);
+            Ok(if more {
+                seq += 1;
+                ControlFlow::Continue(())
+            } else {
+                ControlFlow::Break(())
+            })
+        })?;
     stats.count("frames", seq);
     stats.finish();
     Ok(())

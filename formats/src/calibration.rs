@@ -289,16 +289,19 @@ impl fmt::Display for Method {
     }
 }
 
+/// A method name that is none of [`Method::ALL`]'s.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown method `{0}` (expected paper, joint or joint+kinematics)")]
+pub struct UnknownMethod(pub String);
+
 impl FromStr for Method {
-    type Err = String;
+    type Err = UnknownMethod;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         Method::ALL
             .into_iter()
             .find(|m| m.as_str() == s)
-            .ok_or_else(|| {
-                format!("unknown method `{s}` (expected paper, joint or joint+kinematics)")
-            })
+            .ok_or_else(|| UnknownMethod(s.to_string()))
     }
 }
 

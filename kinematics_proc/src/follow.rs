@@ -4,11 +4,10 @@
 
 use std::collections::VecDeque;
 
-use anyhow::{Context, Result};
 use geometry::Arm;
 use messages::{JointPositions, JointState, MAX_JOINTS, Phase, PoseGoal};
 
-use crate::PlannedPose;
+use crate::{KinematicsError, PlannedPose};
 
 /// When a pose counts as settled.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -116,8 +115,9 @@ impl Follower {
             })
     }
 
-    /// Takes one validated reading of `arm`'s joints.
-    pub fn step(&mut self, p: &JointPositions, arm: &Arm) -> Result<Step> {
+    /// Takes one validated reading of `arm`'s joints; fails only when the
+    /// end-effector model does ([`KinematicsError::ForwardKinematics`]).
+    pub fn step(&mut self, p: &JointPositions, arm: &Arm) -> Result<Step, KinematicsError> {
         let q = p.joints();
         // Keep just enough history to judge stillness over the window.
         self.recent.push_back((p.stamp_ns, p.q));
@@ -186,7 +186,7 @@ impl Follower {
         pose: u64,
         role: u32,
         phase: Phase,
-    ) -> Result<JointState> {
+    ) -> Result<JointState, KinematicsError> {
         let q = p.joints();
         let mut state = JointState {
             seq: self.state_seq,
@@ -201,7 +201,7 @@ impl Follower {
         self.state_seq += 1;
         state.model_point = arm
             .end_effector(q, &[])
-            .context("forward kinematics")?
+            .map_err(KinematicsError::ForwardKinematics)?
             .into();
         Ok(state)
     }

@@ -25,9 +25,82 @@ pub mod follow;
 pub mod sim_arm;
 pub mod stage;
 
+use std::path::PathBuf;
+use std::time::Duration;
+
 pub use formats::plan::PlannedPose;
-use geometry::{Arm, Role};
+use geometry::{Arm, GeometryError, Role};
+use messages::MAX_JOINTS;
 use rand::{Rng, SeedableRng};
+use runtime::BusError;
+use runtime::journal::JournalError;
+
+/// Why following the plan, or the simulated arm driver, stopped or could
+/// not start.
+#[derive(Debug, thiserror::Error)]
+pub enum KinematicsError {
+    /// The shared-memory bus failed (opening a port, receiving, sending).
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    /// Publishing a joint state failed.
+    #[error("publishing joint states")]
+    PublishStates(#[source] BusError),
+    /// The journal of an earlier run could not be opened or read.
+    #[error("resuming from the journal {}", path.display())]
+    Resume {
+        /// The journal.
+        path: PathBuf,
+        /// Why it could not be opened.
+        #[source]
+        source: JournalError,
+    },
+    /// A settled pose could not be journaled.
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    /// The end-effector model failed on a reading's joint positions.
+    #[error("forward kinematics")]
+    ForwardKinematics(#[source] GeometryError),
+    /// A peer the stage waits for before it starts (subscribers to the
+    /// joint states, an arm driver) did not come.
+    #[error("{what} did not appear within {} s", waited.as_secs())]
+    NotAppeared {
+        /// What was waited for.
+        what: String,
+        /// How long.
+        waited: Duration,
+    },
+    /// The arm driver sent no usable joint positions for too long: it is
+    /// gone, or everything it sends is refused.
+    #[error(
+        "the arm driver sent no usable joint positions for {:.1} s ({received} received, {rejected} rejected{})",
+        silent_for.as_secs_f64(),
+        last_because(last_fault.as_deref())
+    )]
+    DriverSilent {
+        /// How long nothing usable came.
+        silent_for: Duration,
+        /// Joint positions messages received in all.
+        received: u64,
+        /// Of those, how many were refused.
+        rejected: u64,
+        /// Why the last refused one was refused.
+        last_fault: Option<String>,
+    },
+    /// An arm with more joints than the messages carry.
+    #[error("the arm has {dof} joints; at most {MAX_JOINTS} are supported")]
+    TooManyJoints {
+        /// The arm's joints.
+        dof: usize,
+    },
+}
+
+/// The end of [`KinematicsError::DriverSilent`]'s message: why the last
+/// refused reading was refused, if one was.
+fn last_because(fault: Option<&str>) -> String {
+    fault
+        .map(|why| format!(", the last because: {why}"))
+        .unwrap_or_default()
+}
 
 /// The middle of each joint's range: where a simulated arm starts.
 pub fn home(arm: &Arm) -> Vec<f64> {

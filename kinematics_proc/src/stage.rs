@@ -5,15 +5,15 @@ use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
 use geometry::Arm;
 use messages::topics::{self, Topic};
 use messages::{JointPositions, JointState, MAX_JOINTS, Phase, now_ns};
+use runtime::BusError;
 use runtime::journal::Journal;
 
-use crate::PlannedPose;
 use crate::follow::{Follower, SettleRule};
 use crate::sim_arm::SimArm;
+use crate::{KinematicsError, PlannedPose};
 
 /// Where a restarted `kinematics_proc` takes up its plan: the index after
 /// the last pose its journal says the arm settled at; 0 when none.
@@ -25,10 +25,16 @@ pub fn resume_point(plan: &[PlannedPose], reached: &[JointState]) -> usize {
 }
 
 /// Opens the journal at `path` and, if an earlier run reached some poses
-/// of `plan`, drops those from `plan`.
-pub fn resume(path: &Path, plan: &mut Vec<PlannedPose>) -> Result<Journal> {
-    let (journal, recovered) = Journal::open(path, &[topics::JointState::ID])
-        .with_context(|| format!("resuming from the journal {}", path.display()))?;
+/// of `plan`, drops those from `plan`. A journal that cannot be opened is a
+/// [`KinematicsError::Resume`].
+pub fn resume(path: &Path, plan: &mut Vec<PlannedPose>) -> Result<Journal, KinematicsError> {
+    let (journal, recovered) =
+        Journal::open(path, &[topics::JointState::ID]).map_err(|source| {
+            KinematicsError::Resume {
+                path: path.to_path_buf(),
+                source,
+            }
+        })?;
     if let Some(why) = &recovered.dropped {
         tracing::warn!(
             "{}: dropped an incomplete record at its end ({why}); everything before it is kept",
@@ -73,11 +79,20 @@ impl Default for DriveOptions {
     }
 }
 
-fn wait_for(what: &str, mut ready: impl FnMut() -> Result<bool>) -> Result<()> {
+/// How long [`drive`] waits for its subscribers and for an arm driver.
+const APPEAR_WITHIN: Duration = Duration::from_secs(30);
+
+fn wait_for(
+    what: &str,
+    mut ready: impl FnMut() -> Result<bool, BusError>,
+) -> Result<(), KinematicsError> {
     let waited = Instant::now();
     while !ready()? {
-        if waited.elapsed() > Duration::from_secs(30) {
-            bail!("{what} did not appear within 30 s");
+        if waited.elapsed() > APPEAR_WITHIN {
+            return Err(KinematicsError::NotAppeared {
+                what: what.to_string(),
+                waited: APPEAR_WITHIN,
+            });
         }
         std::thread::sleep(Duration::from_millis(10));
     }
@@ -87,14 +102,17 @@ fn wait_for(what: &str, mut ready: impl FnMut() -> Result<bool>) -> Result<()> {
 /// Runs `plan` through the arm driver on pipeline `prefix`: sends each
 /// pose goal, follows the driver's joint positions, publishes a joint
 /// state for each, and journals each pose when the arm settles there.
-/// Returns the joint states published.
+/// Returns the joint states published. Fails when no arm driver comes
+/// ([`KinematicsError::NotAppeared`]) or it goes silent
+/// ([`KinematicsError::DriverSilent`]), and on the bus's or the journal's
+/// failures.
 pub fn drive(
     prefix: &str,
     arm: &Arm,
     plan: Vec<PlannedPose>,
     options: DriveOptions,
     mut journal: Option<Journal>,
-) -> Result<u64> {
+) -> Result<u64, KinematicsError> {
     let bus = stages::bus_of::<stages::kinematics::Kinematics>(prefix)?;
     let states = bus.publisher::<topics::JointState>()?;
     let goals = bus.publisher::<topics::PoseGoal>()?;
@@ -126,10 +144,15 @@ pub fn drive(
     bus.wake()?.run(
         &[positions.listener()],
         Some(Duration::from_millis(10)),
-        || -> Result<_> {
+        || -> Result<_, KinematicsError> {
             while let Some(p) = positions.receive()? {
                 received += 1;
-                let checked = p.fault(dof).map_or_else(|| order.check(p.stamp_ns), Err);
+                // Both reasons as text: the rejection log and the silent
+                // driver's error name the last one.
+                let checked = p.fault(dof).map_or_else(
+                    || order.check(p.stamp_ns).map_err(|behind| behind.to_string()),
+                    Err,
+                );
                 if let Err(why) = checked {
                     rejections.reject("joint positions message", p.seq, &why);
                     last_fault = Some(why);
@@ -147,7 +170,9 @@ pub fn drive(
                         journal.append::<topics::JointState>(&step.state)?;
                     }
                 }
-                states.send(step.state).context("publishing joint states")?;
+                states
+                    .send(step.state)
+                    .map_err(KinematicsError::PublishStates)?;
                 published += 1;
                 stats.cpu_step(cpu);
                 if let Some(goal) = step.goal {
@@ -159,12 +184,12 @@ pub fn drive(
                 }
             }
             if last_heard.elapsed() > silent_after {
-                bail!(
-                    "the arm driver sent no usable joint positions for {:.1} s ({received} received, {} rejected{})",
-                    silent_after.as_secs_f64(),
-                    rejections.count(),
-                    last_fault.as_deref().map(|w| format!(", the last because: {w}")).unwrap_or_default()
-                );
+                return Err(KinematicsError::DriverSilent {
+                    silent_for: silent_after,
+                    received,
+                    rejected: rejections.count(),
+                    last_fault: last_fault.take(),
+                });
             }
             // A driver that started late, or restarted, gets the goal again.
             if last_sent.elapsed() > options.resend_every {
@@ -183,10 +208,17 @@ pub fn drive(
 /// The simulated arm driver on pipeline `prefix`: publishes the joint
 /// positions of an arm of `dof` joints starting at `home` every `tick`,
 /// moving to each pose goal in `move_ns`, until a goal ends the plan.
-pub fn run_sim_arm(prefix: &str, home: Vec<f64>, move_ns: i64, tick: Duration) -> Result<()> {
+/// An arm of more joints than the messages carry is a
+/// [`KinematicsError::TooManyJoints`].
+pub fn run_sim_arm(
+    prefix: &str,
+    home: Vec<f64>,
+    move_ns: i64,
+    tick: Duration,
+) -> Result<(), KinematicsError> {
     let dof = home.len();
     if dof > MAX_JOINTS {
-        bail!("the arm has {dof} joints; at most {MAX_JOINTS} are supported");
+        return Err(KinematicsError::TooManyJoints { dof });
     }
     let bus = stages::bus_of::<stages::sim_arm::SimArm>(prefix)?;
     let positions = bus.publisher::<topics::JointPositions>()?;
@@ -195,33 +227,34 @@ pub fn run_sim_arm(prefix: &str, home: Vec<f64>, move_ns: i64, tick: Duration) -
     let mut rejections = runtime::Rejections::default();
     let mut stats = runtime::stats::StageStats::new("sim_arm");
     let mut seq = 0u64;
-    bus.wake()?.run(&[], Some(tick), || -> Result<_> {
-        let cpu = runtime::stats::StepStart::now();
-        let now = now_ns();
-        let mut finished = false;
-        while let Some(goal) = goals.receive()? {
-            match goal.fault(dof) {
-                Some(why) => rejections.reject("pose goal", goal.seq, &why),
-                None if goal.finished() => finished = true,
-                None => arm.go_to(goal.pose, goal.joints(), now),
+    bus.wake()?
+        .run(&[], Some(tick), || -> Result<_, KinematicsError> {
+            let cpu = runtime::stats::StepStart::now();
+            let now = now_ns();
+            let mut finished = false;
+            while let Some(goal) = goals.receive()? {
+                match goal.fault(dof) {
+                    Some(why) => rejections.reject("pose goal", goal.seq, &why),
+                    None if goal.finished() => finished = true,
+                    None => arm.go_to(goal.pose, goal.joints(), now),
+                }
             }
-        }
-        let mut msg = JointPositions {
-            seq,
-            stamp_ns: now,
-            dof: dof as u32,
-            ..JointPositions::default()
-        };
-        msg.q[..dof].copy_from_slice(&arm.at(now));
-        positions.send(msg)?;
-        seq += 1;
-        stats.cpu_step(cpu);
-        Ok(if finished {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        })
-    })?;
+            let mut msg = JointPositions {
+                seq,
+                stamp_ns: now,
+                dof: dof as u32,
+                ..JointPositions::default()
+            };
+            msg.q[..dof].copy_from_slice(&arm.at(now));
+            positions.send(msg)?;
+            seq += 1;
+            stats.cpu_step(cpu);
+            Ok(if finished {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
+        })?;
     stats.count("pose_goals_rejected", rejections.count());
     stats.finish();
     tracing::info!(positions = seq, "plan finished");

@@ -1,18 +1,19 @@
 //! The topic table: every topic of the pipeline declared once, with its
 //! name, its message type, how to read its stamp, and whether it carries
 //! frames. Everything that handles "every topic" derives from it: the
-//! services the launcher holds open ([`crate::Bus::open_all`]), the
+//! services the launcher holds open (`runtime::Bus::open_all`), the
 //! recorder's capture, channels and counters, and replay's publishers.
 //!
 //! Each topic is a marker type, so a port is typed by its topic and a name
-//! and a type can never disagree:
+//! and a type can never disagree (`runtime::Bus::publisher::<topics::JointState>()`
+//! sends a [`crate::JointState`] and nothing else):
 //!
-//! ```no_run
-//! use messages::{Bus, JointState, topics};
-//! let bus = Bus::new("demo", "example")?;
-//! let publisher = bus.publisher::<topics::JointState>()?;
-//! publisher.send(JointState::default())?;
-//! # Ok::<(), messages::BusError>(())
+//! ```
+//! use messages::topics::{self, SmallTopic, Topic, TopicId};
+//! assert_eq!(topics::JointState::ID, TopicId::JointState);
+//! assert_eq!(TopicId::from_name("joint_state"), Some(TopicId::JointState));
+//! let stamp = topics::JointState::stamp_ns(&messages::JointState { stamp_ns: 7, ..Default::default() });
+//! assert_eq!(stamp, 7);
 //! ```
 //!
 //! Code that must do something for every topic implements [`TopicVisitor`]
@@ -24,7 +25,7 @@ use bytemuck::Pod;
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 
-use crate::FrameHeader;
+use crate::{FrameError, FrameHeader};
 
 /// A topic: its name on the bus (appended to the prefix) and in recordings.
 pub trait Topic: 'static {
@@ -169,13 +170,31 @@ impl TopicId {
     }
 }
 
-fn read<T: Pod>(bytes: &[u8]) -> Result<T, String> {
+/// Why the bytes of a message do not decode ([`Message::decode`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum DecodeError {
+    /// Fewer bytes than a frame's header.
+    #[error("frame of {0} bytes has no header")]
+    NoHeader(usize),
+    /// Not the size of the message type (or of the frame header).
+    #[error("{len} bytes where {expected} were expected")]
+    Size {
+        /// Bytes given.
+        len: usize,
+        /// Bytes of the type.
+        expected: usize,
+    },
+    /// A frame whose header disagrees with its pixels.
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+}
+
+fn read<T: Pod>(bytes: &[u8]) -> Result<T, DecodeError> {
     if bytes.len() != size_of::<T>() {
-        return Err(format!(
-            "{} bytes where {} were expected",
-            bytes.len(),
-            size_of::<T>()
-        ));
+        return Err(DecodeError::Size {
+            len: bytes.len(),
+            expected: size_of::<T>(),
+        });
     }
     Ok(bytemuck::pod_read_unaligned(bytes))
 }
@@ -260,12 +279,12 @@ macro_rules! topic_table {
         impl<'a> Message<'a> {
             /// Decodes the bytes of a message on `topic` (a frame: its header
             /// then both images, checked against each other).
-            pub fn decode(topic: TopicId, bytes: &'a [u8]) -> Result<Self, String> {
+            pub fn decode(topic: TopicId, bytes: &'a [u8]) -> Result<Self, DecodeError> {
                 Ok(match topic {
                     TopicId::$frames => {
                         let n = size_of::<FrameHeader>();
                         if bytes.len() < n {
-                            return Err(format!("frame of {} bytes has no header", bytes.len()));
+                            return Err(DecodeError::NoHeader(bytes.len()));
                         }
                         let header: FrameHeader = read(&bytes[..n])?;
                         header.validate(bytes.len() - n)?;
@@ -373,7 +392,7 @@ mod tests {
         shifted.shift_clock(-40);
         assert_eq!(shifted.stamp_ns(), 2);
         let err = Message::decode(TopicId::Detections, bytes).unwrap_err();
-        assert!(err.contains("expected"), "{err}");
+        assert!(err.to_string().contains("expected"), "{err}");
         assert_eq!(
             TopicId::JointState.layout().type_name,
             "mirror.JointState.v1"

@@ -98,34 +98,70 @@ impl FrameHeader {
     }
 
     /// Checks the header against the payload length; says what is wrong.
-    pub fn validate(&self, payload_len: usize) -> Result<(), String> {
+    pub fn validate(&self, payload_len: usize) -> Result<(), FrameError> {
         let bpp = self
             .bytes_per_pixel()
-            .ok_or_else(|| format!("unknown encoding {}", self.encoding))?;
+            .ok_or(FrameError::UnknownEncoding(self.encoding))?;
         if self.width == 0
             || self.height == 0
             || self.width > MAX_IMAGE_SIDE
             || self.height > MAX_IMAGE_SIDE
         {
-            return Err(format!(
-                "image size {}x{} out of range",
-                self.width, self.height
-            ));
+            return Err(FrameError::ImageSize {
+                width: self.width,
+                height: self.height,
+            });
         }
         if self.stride < self.width * bpp {
-            return Err(format!(
-                "stride {} below width {} x {bpp}",
-                self.stride, self.width
-            ));
+            return Err(FrameError::Stride {
+                stride: self.stride,
+                width: self.width,
+                bytes_per_pixel: bpp,
+            });
         }
         if payload_len != 2 * self.image_len() {
-            return Err(format!(
-                "payload of {payload_len} bytes, expected {}",
-                2 * self.image_len()
-            ));
+            return Err(FrameError::Payload {
+                len: payload_len,
+                expected: 2 * self.image_len(),
+            });
         }
         Ok(())
     }
+}
+
+/// What is wrong with a frame's header, checked against its payload
+/// ([`FrameHeader::validate`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum FrameError {
+    /// [`FrameHeader::encoding`] is no [`Encoding`].
+    #[error("unknown encoding {0}")]
+    UnknownEncoding(u32),
+    /// A side is 0 or above [`MAX_IMAGE_SIDE`].
+    #[error("image size {width}x{height} out of range")]
+    ImageSize {
+        /// Image width, px.
+        width: u32,
+        /// Image height, px.
+        height: u32,
+    },
+    /// Rows shorter than the image's width.
+    #[error("stride {stride} below width {width} x {bytes_per_pixel}")]
+    Stride {
+        /// Bytes per image row.
+        stride: u32,
+        /// Image width, px.
+        width: u32,
+        /// Bytes per pixel of the encoding.
+        bytes_per_pixel: u32,
+    },
+    /// The payload is not two images of the header's size.
+    #[error("payload of {len} bytes, expected {expected}")]
+    Payload {
+        /// Bytes of the payload.
+        len: usize,
+        /// Bytes of two images.
+        expected: usize,
+    },
 }
 
 /// One marker found in one image.

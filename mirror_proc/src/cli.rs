@@ -7,10 +7,10 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use geometry::sim::{self, Counts, NoiseModel};
 
-use crate::calibrate::{Method, calibrate};
-use crate::evaluate::evaluate;
-use crate::experiment::{self, ExperimentConfig};
-use crate::plot;
+use mirror_proc::calibrate::{Method, calibrate};
+use mirror_proc::evaluate::evaluate;
+use mirror_proc::experiment::{self, ExperimentConfig};
+use mirror_proc::plot;
 
 /// Mirror perspective-taking: calibrate a robot's mirror-perspective cameras
 /// from views of its own end-effector in a mirror, and evaluate them.
@@ -200,9 +200,7 @@ fn run(cli: Cli) -> Result<()> {
             method,
             out,
         } => {
-            let method: Method = method
-                .parse()
-                .map_err(|e: String| anyhow!("--method: {e}"))?;
+            let method: Method = method.parse().map_err(|e| anyhow!("--method: {e}"))?;
             let rig_model = read_rig(&rig)?;
             let data = formats::samples::read(&samples, rig_model.arm.as_ref().map(|a| a.dof()))?;
             let cal = calibrate(&rig_model, &data, method)
@@ -285,7 +283,7 @@ fn run(cli: Cli) -> Result<()> {
             calibration,
             out,
         } => {
-            for path in crate::export::export(&rig, &calibration, &out)? {
+            for path in mirror_proc::export::export(&rig, &calibration, &out)? {
                 println!("wrote {}", path.display());
             }
         }
@@ -299,13 +297,14 @@ fn run(cli: Cli) -> Result<()> {
             journal,
         }) => {
             let rig_model = read_rig(&rig)?;
-            let config = crate::live::LiveConfig {
+            let config = mirror_proc::live::LiveConfig {
                 method,
                 min_train,
                 settle_margin_ns: settle_ms * 1_000_000,
                 ..Default::default()
             };
-            let result = crate::live_loop::run(&prefix, rig_model, config, journal.as_deref())?;
+            let result =
+                mirror_proc::live_loop::run(&prefix, rig_model, config, journal.as_deref())?;
             let text = serde_json::to_string_pretty(&result)? + "\n";
             match report {
                 Some(path) => std::fs::write(&path, text)

@@ -15,22 +15,52 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use formats::FormatError;
 use geometry::ArmModel;
 
-fn write(path: PathBuf, text: &str, written: &mut Vec<PathBuf>) -> Result<()> {
-    std::fs::write(&path, text).with_context(|| format!("{}: cannot write", path.display()))?;
+/// Why an export failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// The rig, the calibration or the URDF could not be read, does not
+    /// fit the others, or could not be corrected.
+    #[error(transparent)]
+    Format(#[from] FormatError),
+    /// The output folder or a file in it could not be created or written.
+    #[error("{}: {what}", path.display())]
+    Io {
+        /// The folder or file.
+        path: PathBuf,
+        /// What was being done: `cannot create`, `cannot write`.
+        what: &'static str,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+fn write(path: PathBuf, text: &str, written: &mut Vec<PathBuf>) -> Result<(), ExportError> {
+    if let Err(source) = std::fs::write(&path, text) {
+        return Err(ExportError::Io {
+            path,
+            what: "cannot write",
+            source,
+        });
+    }
     written.push(path);
     Ok(())
 }
 
 /// Exports the calibration at `cal_path`, made with the rig at `rig_path`,
 /// into `out` (created). Returns the files written.
-pub fn export(rig_path: &Path, cal_path: &Path, out: &Path) -> Result<Vec<PathBuf>> {
+pub fn export(rig_path: &Path, cal_path: &Path, out: &Path) -> Result<Vec<PathBuf>, ExportError> {
     let rig = formats::rig::read(rig_path)?;
     let cal = formats::calibration::read(cal_path)?;
     cal.check_arm(cal_path, &rig)?;
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    std::fs::create_dir_all(out).map_err(|source| ExportError::Io {
+        path: out.to_path_buf(),
+        what: "cannot create",
+        source,
+    })?;
     let mut written = Vec::new();
     write(
         out.join("mirror.json"),

@@ -1,6 +1,8 @@
 //! The mirror stage: estimating mirror-perspective cameras, evaluating them
-//! with the paper's metrics, reproducing the paper's experiment, and the
-//! offline command line (`mirror_proc calibrate | evaluate | simulate | experiment`).
+//! with the paper's metrics, reproducing the paper's experiment, exporting a
+//! calibration, and the live stage's loop. The offline command line
+//! (`mirror_proc calibrate | evaluate | simulate | experiment | export | run`)
+//! is the crate's binary.
 //!
 //! ```
 //! use geometry::sim::{generate, nico_scene, NoiseModel, Counts};
@@ -14,7 +16,6 @@
 //! ```
 
 pub mod calibrate;
-pub mod cli;
 pub mod evaluate;
 pub mod experiment;
 pub mod export;

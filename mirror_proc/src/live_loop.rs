@@ -3,16 +3,15 @@
 
 use std::collections::VecDeque;
 use std::ops::ControlFlow;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result};
 use geometry::Rig;
 use messages::now_ns;
 use messages::topics::{self, Topic};
-use runtime::Publisher;
-use runtime::journal::{Journal, Recovered};
+use runtime::journal::{Journal, JournalError, Recovered};
 use runtime::stats::StageStats;
+use runtime::{BusError, Publisher};
 
 use crate::live::{Latency, Live, LiveConfig, LiveReport, Output};
 
@@ -26,6 +25,26 @@ const QUIET_CHECK_EVERY: Duration = Duration::from_millis(100);
 
 /// The topics the stage journals: what a restart must not lose.
 pub const JOURNALED: [topics::TopicId; 2] = [topics::Samples::ID, topics::Calibration::ID];
+
+/// Why the live stage stopped or could not start ([`run`]).
+#[derive(Debug, thiserror::Error)]
+pub enum LiveLoopError {
+    /// The shared-memory bus failed (opening a port, receiving, publishing).
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    /// The journal of an earlier run could not be opened or read.
+    #[error("resuming from the journal {}", path.display())]
+    Resume {
+        /// The journal.
+        path: PathBuf,
+        /// Why it could not be opened.
+        #[source]
+        source: JournalError,
+    },
+    /// A sample or a calibration could not be journaled.
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+}
 
 /// Where the stage's outputs go: the journal first (samples and
 /// calibrations), then the bus.
@@ -43,7 +62,7 @@ struct Outputs {
 }
 
 impl Outputs {
-    fn publish(&mut self, output: Output, stats: &mut StageStats) -> Result<()> {
+    fn publish(&mut self, output: Output, stats: &mut StageStats) -> Result<(), LiveLoopError> {
         match output {
             Output::Sample(s) => {
                 if let Some(journal) = &mut self.journal {
@@ -84,7 +103,7 @@ impl Outputs {
 
 /// Opens `path` and resumes `live` from what it holds; returns the journal
 /// and what must be published.
-fn resume(live: &mut Live, path: &Path) -> Result<(Journal, Vec<Output>)> {
+fn resume(live: &mut Live, path: &Path) -> Result<(Journal, Vec<Output>), JournalError> {
     let (journal, recovered) = Journal::open(path, &JOURNALED)?;
     if recovered == Recovered::default() {
         // A new journal: nothing to resume.
@@ -117,19 +136,23 @@ fn resume(live: &mut Live, path: &Path) -> Result<(Journal, Vec<Output>)> {
 /// Runs the live stage on pipeline `prefix` until the pose plan ends (or a
 /// signal stops it); returns the final report. With `journal`, every
 /// sample and calibration is journaled there before it is published, and a
-/// journal left by an earlier run of the stage is resumed.
+/// journal left by an earlier run of the stage is resumed; one that cannot
+/// be opened is a [`LiveLoopError::Resume`].
 pub fn run(
     prefix: &str,
     rig: Rig,
     config: LiveConfig,
     journal: Option<&Path>,
-) -> Result<LiveReport> {
+) -> Result<LiveReport, LiveLoopError> {
     let began = now_ns();
     let mut live = Live::new(rig, config);
     let (journal, pending) = match journal {
         Some(path) => {
-            let (journal, pending) = resume(&mut live, path)
-                .with_context(|| format!("resuming from the journal {}", path.display()))?;
+            let (journal, pending) =
+                resume(&mut live, path).map_err(|source| LiveLoopError::Resume {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
             (Some(journal), pending)
         }
         None => (None, Vec::new()),
@@ -166,7 +189,7 @@ pub fn run(
     bus.wake()?.run(
         &[joints.listener(), detections.listener()],
         Some(QUIET_CHECK_EVERY),
-        || -> Result<_> {
+        || -> Result<_, LiveLoopError> {
             let cpu = runtime::stats::StepStart::now();
             let mut ready = Vec::new();
             let mut received_ns = Vec::new();

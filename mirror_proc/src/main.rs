@@ -1,8 +1,10 @@
 //! `mirror_proc`: see `mirror_proc --help`.
 
+mod cli;
+
 fn main() -> std::process::ExitCode {
     runtime::init_logging("mirror_proc");
-    let code = mirror_proc::cli::main();
+    let code = cli::main();
     runtime::trace::flush();
     code
 }

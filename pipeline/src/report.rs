@@ -2,13 +2,80 @@
 //! with the simulator's truth and every stage's latencies; the paper's
 //! table and the latency table.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
 
 use geometry::sim::{Dataset, HIDDEN_OBJECT_ID, SimWorld};
 use mirror_proc::calibrate::Method;
 use mirror_proc::experiment::{PAPER_FIGURES, rotation_error};
 use mirror_proc::live::LiveReport;
 use serde::Serialize;
+
+use crate::args::ReportFormat;
+use crate::run::Run;
+use crate::split::Side;
+
+/// Writes the run's `OUT/report.json` and prints it (`format`): the tables
+/// (the paper's one only where the mirror stage ran), or the JSON. A run
+/// that ends without a calibration fails, whatever else it did.
+pub fn finish(
+    results: &[PlacementResult],
+    run: &Run,
+    out: &Path,
+    format: ReportFormat,
+    side: Option<Side>,
+    replayed: bool,
+) -> Result<()> {
+    let path = out.join("report.json");
+    let json = serde_json::json!({
+        "config": run.config,
+        "realtime_priority": run.realtime,
+        "paper": PAPER_FIGURES,
+        "placements": results,
+    });
+    let text = serde_json::to_string_pretty(&json)? + "\n";
+    std::fs::write(&path, &text).with_context(|| format!("{}: cannot write", path.display()))?;
+    if format == ReportFormat::Json {
+        print!("{text}");
+    } else {
+        if side != Some(Side::Robot) {
+            print!("{}", table(results, run.config.method));
+        }
+        print!("{}", latency_table(results));
+        print!("{}", cpu_table(results));
+        if replayed {
+            println!(
+                "report: {}  (in {}: recording.mcap, mirror_report.json, rig.toml, plan.csv, \
+                 stages.log, journal.mcap; compare with `replay diff`)",
+                path.display(),
+                out.display()
+            );
+        } else {
+            println!(
+                "report: {}  (per placement: {}/mirror<i>/{{report.json, recording.mcap, rig.toml, \
+                 plan.csv, stages.log, journal.mcap, arm_journal.mcap}})",
+                path.display(),
+                out.display()
+            );
+        }
+    }
+    let uncalibrated: Vec<String> = results
+        .iter()
+        .filter_map(|r| Some((r.mirror, r.report.as_ref()?)))
+        .filter(|(_, report)| report.calibration.is_none())
+        .map(|(mirror, report)| {
+            format!(
+                "mirror {mirror}: no calibration: {}",
+                report.last_error.as_deref().unwrap_or("no reason given")
+            )
+        })
+        .collect();
+    if !uncalibrated.is_empty() {
+        bail!("{}", uncalibrated.join("; "));
+    }
+    Ok(())
+}
 
 /// What the table shows for one placement.
 #[derive(Debug, Clone, Serialize)]

@@ -31,12 +31,12 @@ use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::Duration;
 
-use runtime::Bus;
+use runtime::{Bus, BusError};
 
-use crate::capture::Capture;
-use crate::live_view::LiveView;
+use crate::capture::{Capture, CaptureError};
+use crate::live_view::{LiveView, LiveViewError};
 use crate::view::ViewBuilder;
-use crate::writer::{RecordingSummary, WriterOptions};
+use crate::writer::{RecordingSummary, WriterError, WriterOptions};
 
 /// How [`record`] runs.
 pub struct RecordOptions {
@@ -58,18 +58,38 @@ pub struct RecordOptions {
     pub realtime_priority: Option<u8>,
 }
 
+/// Why [`record`] failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// Opening the bus, its subscribers or its waitset failed.
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    /// The live view could not start.
+    #[error(transparent)]
+    LiveView(#[from] LiveViewError),
+    /// The writer could not start.
+    #[error(transparent)]
+    Writer(#[from] WriterError),
+    /// The writer failed while recording (its error says why).
+    #[error("recording stopped")]
+    WriterStopped(#[source] WriterError),
+    /// Taking messages from shared memory failed while recording.
+    #[error("recording stopped")]
+    CaptureStopped(#[source] CaptureError),
+}
+
 /// Records pipeline `prefix` into `path` until SIGINT/SIGTERM, then takes
 /// what is still waiting, finishes the file and returns its summary.
 pub fn record(
     prefix: &str,
     path: &Path,
     options: RecordOptions,
-) -> anyhow::Result<RecordingSummary> {
+) -> Result<RecordingSummary, RecordError> {
     let bus = Bus::new(prefix, "recorder")?;
     let capture = Capture::new(&bus)?;
     let live = match &options.live_view {
         Some((host, port)) => {
-            let live = LiveView::start(host, *port).map_err(anyhow::Error::msg)?;
+            let live = LiveView::start(host, *port)?;
             tracing::info!(
                 port = live.port(),
                 "live view: connect Foxglove to ws://{host}:{}",
@@ -105,7 +125,7 @@ pub fn record(
     // The writer's own error says more than the capture's "writer stopped".
     match (handle.finish(), captured) {
         (Ok(summary), Ok(())) => Ok(summary),
-        (Err(e), _) => Err(anyhow::Error::from(e).context("recording stopped")),
-        (Ok(_), Err(e)) => Err(anyhow::Error::from(e).context("recording stopped")),
+        (Err(e), _) => Err(RecordError::WriterStopped(e)),
+        (Ok(_), Err(e)) => Err(RecordError::CaptureStopped(e)),
     }
 }

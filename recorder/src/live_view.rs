@@ -16,6 +16,31 @@ use foxglove::{ChannelBuilder, ChannelId, Context, PartialMetadata, RawChannel, 
 
 use crate::view::{ViewMessage, ViewTopic};
 
+/// Why the live view could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveViewError {
+    /// A viewing channel could not be made.
+    #[error("live view channel {channel}")]
+    Channel {
+        /// The channel's name.
+        channel: String,
+        /// The SDK's error.
+        #[source]
+        source: foxglove::FoxgloveError,
+    },
+    /// The server could not start (the port is taken, say).
+    #[error("live view on {host}:{port}")]
+    Server {
+        /// The host it was to listen on.
+        host: String,
+        /// The port it was to listen on.
+        port: u16,
+        /// The SDK's error.
+        #[source]
+        source: foxglove::FoxgloveError,
+    },
+}
+
 /// A running WebSocket server with one channel per viewing topic.
 pub struct LiveView {
     state: Arc<State>,
@@ -61,7 +86,7 @@ impl ServerListener for State {
 
 impl LiveView {
     /// Serves on `host:port` (port 0 picks a free one).
-    pub fn start(host: &str, port: u16) -> Result<Self, String> {
+    pub fn start(host: &str, port: u16) -> Result<Self, LiveViewError> {
         let context = Context::new();
         let mut channels = HashMap::new();
         let mut by_id = HashMap::new();
@@ -71,7 +96,10 @@ impl LiveView {
                 .schema(v.schema())
                 .context(&context)
                 .build_raw()
-                .map_err(|e| format!("live view channel {}: {e}", v.name()))?;
+                .map_err(|source| LiveViewError::Channel {
+                    channel: v.name(),
+                    source,
+                })?;
             by_id.insert(channel.id(), v);
             channels.insert(v, channel);
         }
@@ -86,7 +114,11 @@ impl LiveView {
             .context(&context)
             .listener(state.clone())
             .start_blocking()
-            .map_err(|e| format!("live view on {host}:{port}: {e}"))?;
+            .map_err(|source| LiveViewError::Server {
+                host: host.to_string(),
+                port,
+                source,
+            })?;
         Ok(Self {
             state,
             port: server.port(),

@@ -213,29 +213,26 @@ impl Recording {
             trusted,
         };
         let mut contents = Contents::default();
-        recording
-            .visit(
-                |log_time, message| {
-                    *contents.counts.entry(message.topic()).or_default() += 1;
-                    if let Message::Frames(_, pixels) = message {
-                        contents.largest_frame_bytes =
-                            contents.largest_frame_bytes.max(pixels.len());
-                    }
-                    contents.time_range = Some(match contents.time_range {
-                        None => (log_time, log_time),
-                        Some((a, b)) => (a.min(log_time), b.max(log_time)),
-                    });
-                    Ok::<_, String>(true)
-                },
-                |other, undecodable| {
-                    contents.other_messages = other;
-                    contents.undecodable = undecodable;
-                },
-                |damage| contents.damage = Some(damage),
-                None,
-                None,
-            )
-            .map_err(fail)?;
+        recording.visit(
+            |log_time, message| {
+                *contents.counts.entry(message.topic()).or_default() += 1;
+                if let Message::Frames(_, pixels) = message {
+                    contents.largest_frame_bytes = contents.largest_frame_bytes.max(pixels.len());
+                }
+                contents.time_range = Some(match contents.time_range {
+                    None => (log_time, log_time),
+                    Some((a, b)) => (a.min(log_time), b.max(log_time)),
+                });
+                Ok::<_, ReadError>(true)
+            },
+            |other, undecodable| {
+                contents.other_messages = other;
+                contents.undecodable = undecodable;
+            },
+            |damage| contents.damage = Some(damage),
+            None,
+            None,
+        )?;
         // Reading stops where the file stops vouching for its messages.
         if let (Some(why), Some(damage)) = (unchecked, contents.damage.as_mut()) {
             damage.error = format!("{why} ({})", damage.error);
@@ -255,8 +252,9 @@ impl Recording {
     }
 
     /// Calls `f` on each lossless message in file order until it returns
-    /// `Ok(false)` or the readable part ends.
-    pub fn for_each<E: From<String>>(
+    /// `Ok(false)` or the readable part ends; the file's errors come as
+    /// [`ReadError`]s, `f`'s as they are.
+    pub fn for_each<E: From<ReadError>>(
         &self,
         f: impl FnMut(u64, Message<'_>) -> Result<bool, E>,
     ) -> Result<(), E> {
@@ -269,9 +267,8 @@ impl Recording {
         let mut out: BTreeMap<TopicId, Vec<Vec<u8>>> = BTreeMap::new();
         self.for_each(|_, m| {
             out.entry(m.topic()).or_default().push(m.to_bytes());
-            Ok::<_, String>(true)
-        })
-        .map_err(|message| ReadError::new(&self.path, message))?;
+            Ok::<_, ReadError>(true)
+        })?;
         Ok(out)
     }
 
@@ -280,13 +277,12 @@ impl Recording {
     /// the readable part.
     pub fn for_each_raw(&self, mut f: impl FnMut(&str, u64, &[u8])) -> Result<(), ReadError> {
         self.visit(
-            |_, _| Ok::<_, String>(true),
+            |_, _| Ok::<_, ReadError>(true),
             |_, _| {},
             |_| {},
             Some(&mut f),
             None,
         )
-        .map_err(|message| ReadError::new(&self.path, message))
     }
 
     /// The attached files and the metadata records, read in one pass.
@@ -307,16 +303,20 @@ impl Recording {
     /// Calls `f` with each attachment and metadata record of the readable part.
     fn for_each_extra(&self, mut f: impl FnMut(&Record<'_>)) -> Result<(), ReadError> {
         self.visit(
-            |_, _| Ok::<_, String>(true),
+            |_, _| Ok::<_, ReadError>(true),
             |_, _| {},
             |_| {},
             None,
             Some(&mut f),
         )
-        .map_err(|message| ReadError::new(&self.path, message))
     }
 
-    fn visit<E: From<String>>(
+    /// Reads the trusted part of the file, calling `f` on each lossless
+    /// message (until it returns `Ok(false)`), `raw` on every message and
+    /// `extras` on every attachment and metadata record; then `on_damage`
+    /// if reading stopped at damage, and `others` with the counts of
+    /// messages on other channels and of undecodable ones.
+    fn visit<E: From<ReadError>>(
         &self,
         mut f: impl FnMut(u64, Message<'_>) -> Result<bool, E>,
         others: impl FnOnce(u64, u64),
@@ -324,7 +324,8 @@ impl Recording {
         mut raw: Option<RawVisitor<'_>>,
         mut extras: Option<ExtraVisitor<'_>>,
     ) -> Result<(), E> {
-        let mut file = open_mcap(&self.path)?.take(self.trusted);
+        let fail = |message: String| ReadError::new(&self.path, message);
+        let mut file = open_mcap(&self.path).map_err(fail)?.take(self.trusted);
         let mut reader = LinearReader::new_with_options(
             LinearReaderOptions::default()
                 .with_prevalidate_chunk_crcs(true)
@@ -346,7 +347,7 @@ impl Recording {
                 LinearReadEvent::ReadRequest(need) => {
                     let n = file
                         .read(reader.insert(need))
-                        .map_err(|e| format!("cannot read: {e}"))?;
+                        .map_err(|e| fail(format!("cannot read: {e}")))?;
                     if n == 0 {
                         damage = Some("the file ends in the middle of a record".into());
                         break;
@@ -368,7 +369,8 @@ impl Recording {
                     schemas.insert(header.id, (header.name, data.into_owned()));
                 }
                 Record::Channel(channel) => {
-                    let topic = lossless_topic(&channel, schemas.get(&channel.schema_id))?;
+                    let topic =
+                        lossless_topic(&channel, schemas.get(&channel.schema_id)).map_err(fail)?;
                     channels.insert(channel.id, (topic, channel.topic));
                 }
                 Record::Message { header, data } => {

@@ -10,9 +10,9 @@
 use std::time::{Duration, Instant};
 
 use messages::topics::TopicId;
-use runtime::{AnyPublisher, Bus};
+use runtime::{AnyPublisher, Bus, BusError};
 
-use crate::reader::Recording;
+use crate::reader::{ReadError, Recording};
 
 pub use stages::replay::{Kind, Pace};
 
@@ -30,6 +30,31 @@ pub struct ReplayOptions {
     pub wait_timeout: Duration,
     /// Show a progress bar.
     pub progress: bool,
+}
+
+/// Why a replay could not start or stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// The bus failed: opening it or a publisher, waiting for subscribers,
+    /// publishing.
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    /// The services of the prefix could not be created (lossless) before
+    /// the stages start.
+    #[error(
+        "replay must create the services of prefix `{prefix}` before the stages \
+         start; is a live pipeline using this prefix?"
+    )]
+    Services {
+        /// The pipeline prefix.
+        prefix: String,
+        /// Why the bus could not create them.
+        #[source]
+        source: BusError,
+    },
+    /// The recording could not be read.
+    #[error(transparent)]
+    Read(#[from] ReadError),
 }
 
 /// What a replay did.
@@ -68,13 +93,15 @@ impl ReplayBus {
     /// start: they inherit the setting, and with overflow off iceoryx2 0.10
     /// can lose the first samples to a subscriber that came before its
     /// publisher (seen here as frames 4 and 5 missing in 1 of 4 replays).
-    pub fn create(prefix: &str, recording: &Recording, topics: &[TopicId]) -> anyhow::Result<Self> {
+    pub fn create(
+        prefix: &str,
+        recording: &Recording,
+        topics: &[TopicId],
+    ) -> Result<Self, ReplayError> {
         let bus = Bus::new(prefix, "replay")?.lossless();
-        let services = bus.open_all().map_err(|e| {
-            anyhow::Error::from(e).context(format!(
-                "replay must create the services of prefix `{prefix}` before the stages \
-                 start; is a live pipeline using this prefix?"
-            ))
+        let services = bus.open_all().map_err(|source| ReplayError::Services {
+            prefix: prefix.to_string(),
+            source,
         })?;
         let publishers = TopicId::ALL
             .into_iter()
@@ -84,7 +111,7 @@ impl ReplayBus {
                     .then(|| AnyPublisher::new(&bus, t, recording.contents().largest_frame_bytes))
                     .transpose()
             })
-            .collect::<Result<_, _>>()?;
+            .collect::<Result<_, BusError>>()?;
         Ok(Self {
             bus,
             topics: topics.to_vec(),
@@ -101,7 +128,7 @@ pub fn replay(
     recording: &Recording,
     options: &ReplayOptions,
     stop: &dyn Fn() -> bool,
-) -> anyhow::Result<ReplayStats> {
+) -> Result<ReplayStats, ReplayError> {
     let bus = &replay_bus.bus;
     let topics = &replay_bus.topics;
     let waiting = Instant::now();
@@ -132,39 +159,34 @@ pub fn replay(
     let began = Instant::now();
     let mut replay_origin: Option<u64> = None;
     let mut last_time = None;
-    recording
-        .for_each(|log_time, message| -> Result<bool, String> {
-            if stop() {
-                return Ok(false);
+    recording.for_each(|log_time, message| -> Result<bool, ReplayError> {
+        if stop() {
+            return Ok(false);
+        }
+        let Some(publisher) = &replay_bus.publishers[message.topic().index()] else {
+            return Ok(true);
+        };
+        if log_time < start_at {
+            return Ok(true);
+        }
+        let origin = *replay_origin.get_or_insert(log_time);
+        let scale = match options.pace {
+            Pace::Original => Some(1.0),
+            Pace::Scaled(f) => Some(f),
+            Pace::Lockstep => None,
+        };
+        if let Some(scale) = scale {
+            let due = Duration::from_secs_f64(log_time.saturating_sub(origin) as f64 / 1e9 / scale);
+            if let Some(wait) = due.checked_sub(began.elapsed()) {
+                std::thread::sleep(wait);
             }
-            let Some(publisher) = &replay_bus.publishers[message.topic().index()] else {
-                return Ok(true);
-            };
-            if log_time < start_at {
-                return Ok(true);
-            }
-            let origin = *replay_origin.get_or_insert(log_time);
-            let scale = match options.pace {
-                Pace::Original => Some(1.0),
-                Pace::Scaled(f) => Some(f),
-                Pace::Lockstep => None,
-            };
-            if let Some(scale) = scale {
-                let due =
-                    Duration::from_secs_f64(log_time.saturating_sub(origin) as f64 / 1e9 / scale);
-                if let Some(wait) = due.checked_sub(began.elapsed()) {
-                    std::thread::sleep(wait);
-                }
-            }
-            publisher
-                .publish(&message)
-                .map_err(|e| format!("{:#}", anyhow::Error::from(e)))?;
-            stats.published += 1;
-            last_time = Some(log_time);
-            bar.inc(1);
-            Ok(true)
-        })
-        .map_err(anyhow::Error::msg)?;
+        }
+        publisher.publish(&message)?;
+        stats.published += 1;
+        last_time = Some(log_time);
+        bar.inc(1);
+        Ok(true)
+    })?;
     bar.finish_and_clear();
     stats.wall_seconds = began.elapsed().as_secs_f64();
     stats.recorded_seconds = match (replay_origin, last_time) {

@@ -239,7 +239,7 @@ proptest! {
                 let mut read = Vec::new();
                 let outcome = r.for_each(|_, m| {
                     read.push(m.to_bytes());
-                    Ok::<_, String>(true)
+                    Ok::<_, recorder::reader::ReadError>(true)
                 });
                 if let Err(e) = outcome {
                     let e = e.to_string();

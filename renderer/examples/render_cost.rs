@@ -1,5 +1,5 @@
 //! Rendering time per stereo frame by look, over the benchmark's poses.
-//! Run: `cargo run --release -p camera_proc --example render_cost`.
+//! Run: `cargo run --release -p renderer --example render_cost`.
 
 use geometry::sim::{Counts, Facing, SimWorld, generate, nico_noise, nico_scene};
 use renderer::Renderer;

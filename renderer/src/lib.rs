@@ -26,7 +26,7 @@ pub use render::{RenderTruth, Renderer};
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
     /// OpenCV failed (drawing a marker, a warp, a blur, JPEG coding).
-    #[error("OpenCV: {0}")]
+    #[error(transparent)]
     OpenCv(#[from] opencv::Error),
     /// A point could not be projected.
     #[error(transparent)]

@@ -18,7 +18,7 @@
 //! publisher loans uninitialised memory, as the camera does (it renders over
 //! every byte), so nothing in the hop grows with the payload.
 //!
-//! Run: `cargo bench -p messages --bench ipc` (writes
+//! Run: `cargo bench -p runtime --bench ipc` (writes
 //! `target/bench/ipc.json`); under `cargo test` a quick pass only.
 
 use std::io::{Read, Write};

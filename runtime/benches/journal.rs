@@ -2,7 +2,7 @@
 //! journal (its own CRC'd MCAP chunk, handed to the OS) against a baseline
 //! measured in the same run, writing the same bytes to a plain file and
 //! flushing it the same way.
-//! Run: `cargo bench -p messages --bench journal`.
+//! Run: `cargo bench -p runtime --bench journal`.
 
 use std::hint::black_box;
 use std::io::Write;

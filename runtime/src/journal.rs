@@ -15,12 +15,12 @@
 //! after them.
 //!
 //! ```no_run
-//! use messages::journal::Journal;
+//! use runtime::journal::Journal;
 //! use messages::topics::{self, Topic};
 //! let (mut journal, recovered) = Journal::open("journal.mcap", &[topics::Samples::ID])?;
 //! let samples: Vec<messages::MirrorSample> = recovered.messages::<topics::Samples>().collect();
 //! journal.append::<topics::Samples>(&messages::MirrorSample::default())?;
-//! # Ok::<(), messages::journal::JournalError>(())
+//! # Ok::<(), runtime::journal::JournalError>(())
 //! ```
 
 use std::collections::{BTreeMap, HashMap};

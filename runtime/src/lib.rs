@@ -72,15 +72,28 @@ impl StampOrder {
     pub const RESYNC_AFTER: u32 = 3;
 
     /// Takes `stamp`, or says why not.
-    pub fn check(&mut self, stamp: i64) -> Result<(), String> {
+    pub fn check(&mut self, stamp: i64) -> Result<(), StampBehind> {
         if stamp <= self.last && self.behind_in_a_row < Self::RESYNC_AFTER {
             self.behind_in_a_row += 1;
-            return Err(format!("stamp {stamp} not after {}", self.last));
+            return Err(StampBehind {
+                stamp,
+                last: self.last,
+            });
         }
         self.behind_in_a_row = 0;
         self.last = stamp;
         Ok(())
     }
+}
+
+/// A stamp [`StampOrder::check`] refused: not after the last one taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("stamp {stamp} not after {last}")]
+pub struct StampBehind {
+    /// The stamp refused, ns.
+    pub stamp: i64,
+    /// The last stamp taken, ns.
+    pub last: i64,
 }
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`), in colour only
@@ -113,8 +126,13 @@ pub fn init_logging(name: &str) {
 }
 
 /// Runs a stage's `main`: logs to stderr (`RUST_LOG`, default `info`), then
-/// maps an error to one line `<name>: error: ...` and exit code 1.
-pub fn stage_main(name: &str, run: impl FnOnce() -> anyhow::Result<()>) -> std::process::ExitCode {
+/// maps an error to one line `<name>: error: ...` and exit code 1. The error
+/// is printed with the alternate flag (`{e:#}`): an `anyhow::Error` prints
+/// its whole chain of causes.
+pub fn stage_main<E: std::fmt::Display>(
+    name: &str,
+    run: impl FnOnce() -> Result<(), E>,
+) -> std::process::ExitCode {
     init_logging(name);
     let result = run();
     trace::flush();

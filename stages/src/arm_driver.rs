@@ -49,6 +49,24 @@ impl Stage for ArmDriver {
         &args.prefix
     }
 
+    fn example() -> Args {
+        Args {
+            command: vec!["py".into(), "my driver.py".into(), "-v".into()],
+            prefix: "p".into(),
+            rig: "r.toml".into(),
+        }
+    }
+
+    /// The user's command is the program and its own words, not an
+    /// argument: everything else comes back.
+    fn parsed_again(args: &Args, parsed: &Args) -> bool {
+        parsed.command.is_empty()
+            && Args {
+                command: args.command.clone(),
+                ..parsed.clone()
+            } == *args
+    }
+
     /// The first word of the user's command (found on `PATH` if it has no `/`).
     fn program(args: &Args, _bin_dir: &Path) -> PathBuf {
         PathBuf::from(args.command.first().map_or("", String::as_str))

@@ -83,4 +83,17 @@ impl Stage for Bridge {
     fn prefix(args: &Args) -> &str {
         &args.prefix
     }
+
+    fn example() -> Args {
+        Args {
+            prefix: "p".into(),
+            namespace: Some("mirror/split/m0".into()),
+            send: vec![TopicId::Frames, TopicId::JointState],
+            receive: vec![TopicId::Calibration],
+            listen: vec!["tcp/0.0.0.0:7447".into()],
+            connect: Vec::new(),
+            compress_frames: FrameCompression::Zstd,
+            lease_ms: 3000,
+        }
+    }
 }

@@ -40,13 +40,18 @@ impl std::fmt::Display for LookName {
     }
 }
 
+/// A look name that is none of [`LookName::ALL`]'s.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown look {0:?} (realistic, clean, sharp)")]
+pub struct UnknownLook(pub String);
+
 impl std::str::FromStr for LookName {
-    type Err = String;
+    type Err = UnknownLook;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         LookName::ALL
             .into_iter()
             .find(|l| l.as_str() == s)
-            .ok_or_else(|| format!("unknown look {s:?} (realistic, clean, sharp)"))
+            .ok_or_else(|| UnknownLook(s.to_string()))
     }
 }
 
@@ -114,5 +119,16 @@ impl Stage for Camera {
 
     fn prefix(args: &Args) -> &str {
         &args.prefix
+    }
+
+    fn example() -> Args {
+        Args {
+            prefix: "p".into(),
+            mirror: 2,
+            fps: 29.97,
+            look: LookName::Clean,
+            mjpeg: Some(80),
+            ..Default::default()
+        }
     }
 }

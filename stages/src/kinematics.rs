@@ -94,4 +94,14 @@ impl Stage for Kinematics {
     fn prefix(args: &Args) -> &str {
         &args.prefix
     }
+
+    fn example() -> Args {
+        Args {
+            plan: Some("plan.csv".into()),
+            dwell_ms: 150,
+            wait_subscribers: 2,
+            journal: Some("arm.mcap".into()),
+            ..Args::new("p", "r.toml")
+        }
+    }
 }

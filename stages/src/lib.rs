@@ -103,7 +103,7 @@ pub const STOP_GRACE: Duration = Duration::from_secs(3);
 pub trait Stage {
     /// The arguments: the struct its binary parses (with `SUBCOMMAND`
     /// before them, if any).
-    type Args: clap::Args + Serialize + Clone + Debug + PartialEq;
+    type Args: clap::Args + clap::FromArgMatches + Serialize + Clone + Debug + PartialEq;
     /// Its binary, and its name in logs and reports.
     const BINARY: &'static str;
     /// The subcommand of its binary that runs it as a stage, if any.
@@ -157,6 +157,17 @@ pub trait Stage {
     /// Its scheduling niceness (0: the launcher's own).
     fn niceness(_args: &Self::Args) -> i32 {
         0
+    }
+
+    /// Arguments away from their defaults where the launcher sets them:
+    /// what the command-line round trip is checked on.
+    fn example() -> Self::Args;
+
+    /// Whether `parsed`, the command line for `args` parsed back by the
+    /// binary's parser, is `args` again: equality, unless the arguments
+    /// hold what is not an argument.
+    fn parsed_again(args: &Self::Args, parsed: &Self::Args) -> bool {
+        args == parsed
     }
 }
 
@@ -225,8 +236,18 @@ macro_rules! stage_table {
             }
         }
 
-        /// The binaries of the workspace's stages, for building them.
-        pub const BINARIES: &[&str] = &[$(<$stage>::BINARY),*];
+        impl StageArgs {
+            /// Every stage's [`Stage::example`].
+            pub fn examples() -> Vec<StageArgs> {
+                vec![$(<$stage>::example().into()),*]
+            }
+
+            /// Checks that this stage's command line, parsed back by its
+            /// binary's parser, gives its arguments again ([`argv`]).
+            pub fn check_argv_round_trip(&self) -> Result<(), argv::RoundTripError> {
+                match self { $(StageArgs::$variant(a) => argv::round_trip::<$stage>(a),)* }
+            }
+        }
     };
 }
 
@@ -275,11 +296,24 @@ pub fn subscribers_of<'a>(
 }
 
 /// Parses a topic's name (a clap value parser).
-pub fn parse_topic(name: &str) -> Result<TopicId, String> {
-    TopicId::from_name(name).ok_or_else(|| {
-        let known: Vec<_> = TopicId::ALL.iter().map(|t| t.name()).collect();
-        format!("no topic {name:?} (topics: {})", known.join(", "))
+pub fn parse_topic(name: &str) -> Result<TopicId, UnknownTopic> {
+    TopicId::from_name(name).ok_or_else(|| UnknownTopic {
+        name: name.to_string(),
     })
+}
+
+/// A name [`parse_topic`] does not know; it says which topics there are.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("no topic {name:?} (topics: {})", known_topics())]
+pub struct UnknownTopic {
+    /// The name given.
+    pub name: String,
+}
+
+/// The names of every topic, comma separated.
+fn known_topics() -> String {
+    let known: Vec<_> = TopicId::ALL.iter().map(|t| t.name()).collect();
+    known.join(", ")
 }
 
 /// Writes topics by name (for [`argv::of`]).
@@ -290,98 +324,13 @@ fn serialize_topics<S: serde::Serializer>(
     serializer.collect_seq(topics.iter().map(|t| t.name()))
 }
 
-/// One stage of each kind, with arguments away from their defaults where
-/// the launcher sets them: what the round-trip tests walk.
-#[cfg(test)]
-fn examples() -> Vec<StageArgs> {
-    use formats::calibration::Method;
-    let mut recorder = recorder::Args {
-        prefix: "p_m0".into(),
-        out: "out dir/recording.mcap".into(),
-        overwrite: true,
-        rig: Some("rig.toml".into()),
-        attach: vec!["plan.csv".into(), "pipeline.toml".into()],
-        meta: vec![("mirror".into(), "0".into()), ("fps".into(), "30".into())],
-        live_view: Some(8765),
-        realtime_priority: Some(10),
-        ..Default::default()
-    };
-    recorder.compression = recorder::Compression::Lz4;
-    let mirror = mirror::Args {
-        method: Method::Joint,
-        report: Some("out/report.json".into()),
-        journal: Some("out/journal.mcap".into()),
-        min_train: 12,
-        ..mirror::Args::new("p", "r.toml")
-    };
-    let camera = camera::Args {
-        prefix: "p".into(),
-        mirror: 2,
-        fps: 29.97,
-        look: camera::LookName::Clean,
-        mjpeg: Some(80),
-        ..Default::default()
-    };
-    let replay = replay::Args {
-        kind: replay::Kind::Detections,
-        topics: Some(vec![TopicId::JointState, TopicId::Detections]),
-        pace: replay::Pace::Scaled(2.5),
-        wait_subscribers: 3,
-        ..replay::Args::new("a.mcap", "p")
-    };
-    let kinematics = kinematics::Args {
-        plan: Some("plan.csv".into()),
-        dwell_ms: 150,
-        wait_subscribers: 2,
-        journal: Some("arm.mcap".into()),
-        ..kinematics::Args::new("p", "r.toml")
-    };
-    let bridge = bridge::Args {
-        prefix: "p".into(),
-        namespace: Some("mirror/split/m0".into()),
-        send: vec![TopicId::Frames, TopicId::JointState],
-        receive: vec![TopicId::Calibration],
-        listen: vec!["tcp/0.0.0.0:7447".into()],
-        connect: Vec::new(),
-        compress_frames: bridge::FrameCompression::Zstd,
-        lease_ms: 3000,
-    };
-    vec![
-        recorder.into(),
-        mirror.into(),
-        tracker::Args {
-            prefix: "p".into(),
-            no_mirrored: true,
-            full_scan_every: 4,
-        }
-        .into(),
-        camera.into(),
-        replay.into(),
-        sim_arm::Args {
-            prefix: "p".into(),
-            rig: "r.toml".into(),
-            move_ms: 120,
-            rate_hz: 250.0,
-        }
-        .into(),
-        arm_driver::Args {
-            command: vec!["py".into(), "my driver.py".into(), "-v".into()],
-            prefix: "p".into(),
-            rig: "r.toml".into(),
-        }
-        .into(),
-        kinematics.into(),
-        bridge.into(),
-    ]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn a_users_driver_is_its_own_program_given_only_the_contract() {
-        let driver = examples()
+        let driver = StageArgs::examples()
             .into_iter()
             .find(|s| matches!(s, StageArgs::ArmDriver(_)))
             .unwrap();
@@ -438,7 +387,7 @@ mod tests {
 
     #[test]
     fn subscribers_are_counted_from_the_declarations() {
-        let stages = examples();
+        let stages = StageArgs::examples();
         // The recorder subscribes to everything; the mirror stage and the
         // bridge (which sends them) to joint states; the camera and both
         // arm drivers to pose goals.
@@ -453,7 +402,7 @@ mod tests {
     #[test]
     fn command_lines_follow_the_typed_arguments() {
         let argv = |s: &StageArgs| s.argv().join(" ");
-        let stages = examples();
+        let stages = StageArgs::examples();
         assert_eq!(
             argv(&stages[1]),
             "run --prefix p --rig r.toml --method joint --min-train 12 --settle-ms 30 \

@@ -85,4 +85,14 @@ impl Stage for Mirror {
     fn prefix(args: &Args) -> &str {
         &args.prefix
     }
+
+    fn example() -> Args {
+        Args {
+            method: Method::Joint,
+            report: Some("out/report.json".into()),
+            journal: Some("out/journal.mcap".into()),
+            min_train: 12,
+            ..Args::new("p", "r.toml")
+        }
+    }
 }

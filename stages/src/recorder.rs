@@ -137,6 +137,21 @@ impl Stage for Recorder {
         &args.prefix
     }
 
+    fn example() -> Args {
+        Args {
+            prefix: "p_m0".into(),
+            out: "out dir/recording.mcap".into(),
+            overwrite: true,
+            compression: Compression::Lz4,
+            rig: Some("rig.toml".into()),
+            attach: vec!["plan.csv".into(), "pipeline.toml".into()],
+            meta: vec![("mirror".into(), "0".into()), ("run".into(), "a=b".into())],
+            live_view: Some(8765),
+            realtime_priority: Some(10),
+            ..Default::default()
+        }
+    }
+
     /// A live run's recorder is the one stage no sample waits for: on a
     /// busy machine it gives way to the stages on the path from frame to
     /// sample, and its queue takes up the delay. A replay's recorder

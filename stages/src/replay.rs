@@ -52,17 +52,20 @@ pub enum Pace {
     Lockstep,
 }
 
+/// A pace that is none of original, lockstep or a positive factor.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("`{0}`: expected original, lockstep or a speed factor such as 2x")]
+pub struct BadPace(pub String);
+
 impl std::str::FromStr for Pace {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = BadPace;
+    fn from_str(s: &str) -> Result<Self, BadPace> {
         match s {
             "original" => Ok(Pace::Original),
             "lockstep" => Ok(Pace::Lockstep),
             _ => match s.strip_suffix('x').unwrap_or(s).parse::<f64>() {
                 Ok(f) if f.is_finite() && f > 0.0 => Ok(Pace::Scaled(f)),
-                _ => Err(format!(
-                    "`{s}`: expected original, lockstep or a speed factor such as 2x"
-                )),
+                _ => Err(BadPace(s.to_string())),
             },
         }
     }
@@ -171,5 +174,15 @@ impl Stage for Replay {
 
     fn prefix(args: &Args) -> &str {
         args.prefix.as_deref().unwrap_or_default()
+    }
+
+    fn example() -> Args {
+        Args {
+            kind: Kind::Detections,
+            topics: Some(vec![TopicId::JointState, TopicId::Detections]),
+            pace: Pace::Scaled(2.5),
+            wait_subscribers: 3,
+            ..Args::new("a.mcap", "p")
+        }
     }
 }

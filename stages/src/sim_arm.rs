@@ -56,4 +56,13 @@ impl Stage for SimArm {
     fn prefix(args: &Args) -> &str {
         &args.prefix
     }
+
+    fn example() -> Args {
+        Args {
+            prefix: "p".into(),
+            rig: "r.toml".into(),
+            move_ms: 120,
+            rate_hz: 250.0,
+        }
+    }
 }

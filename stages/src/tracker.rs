@@ -59,4 +59,12 @@ impl Stage for Tracker {
     fn prefix(args: &Args) -> &str {
         &args.prefix
     }
+
+    fn example() -> Args {
+        Args {
+            prefix: "p".into(),
+            no_mirrored: true,
+            full_scan_every: 4,
+        }
+    }
 }

@@ -16,11 +16,12 @@
 
 use std::collections::HashSet;
 
-use anyhow::Result;
 use opencv::aruco;
 use opencv::core::{self, Mat, Point2f, Size, Vector};
 use opencv::imgproc;
 use opencv::prelude::*;
+
+use crate::Result;
 
 /// Cells per side: 4 code cells and a black border cell each side.
 pub(crate) const CELLS: usize = 6;

@@ -18,10 +18,11 @@
 //! for m in detector.detect(&image)? {
 //!     println!("id {} mirrored {} at {:?}", m.id, m.mirrored, m.center);
 //! }
-//! # Ok::<(), anyhow::Error>(())
+//! # Ok::<(), tracker_proc::TrackError>(())
 //! ```
 
 pub mod decode;
+mod error;
 pub mod pattern;
 pub mod real_set;
 pub mod refine;
@@ -31,9 +32,9 @@ pub mod step;
 pub use decode::{
     Checks, CodeBook, Correction, Decoded, Reading, Refusal, quad_center, shortest_side,
 };
+pub use error::{Result, TrackError};
 pub use step::{FULL_SCAN_EVERY, Tracked, Tracker};
 
-use anyhow::{Context, Result};
 use messages::Marker;
 use opencv::aruco;
 use opencv::core::{self, Mat, Point2f, Ptr, Vector};
@@ -415,7 +416,7 @@ fn opencv_pass(
         params,
         &mut rejected,
     )
-    .context("ArUco detection")?;
+    .map_err(TrackError::Detection)?;
     Ok((corners, ids, rejected))
 }
 

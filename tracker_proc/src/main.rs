@@ -89,7 +89,8 @@ fn run(prefix: &str, mirrored: bool, full_scan_every: u32) -> Result<()> {
                         stats.record("capture_to_publish", now - det.stamp_ns);
                         count += 1;
                     }
-                    tracker.catch_up(h, payload)
+                    tracker.catch_up(h, payload)?;
+                    Ok(())
                 };
                 let Some(stepped) = frames.receive_with(step)? else {
                     return Ok(ControlFlow::Continue(()));

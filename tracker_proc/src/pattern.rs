@@ -11,12 +11,11 @@
 
 use std::sync::OnceLock;
 
-use anyhow::Result;
-
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use opencv::core::{self, Point2f};
 use opencv::prelude::*;
 
+use crate::Result;
 use crate::decode::{Bits, CELLS, warp_cells};
 
 /// Pixels per cell of the rectified marker.

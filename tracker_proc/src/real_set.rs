@@ -10,12 +10,13 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
 use messages::Marker;
 use opencv::core;
 use serde::Deserialize;
 
-use crate::{Detector, StockPass, diagonal_intersection, quad_center, shortest_side};
+use crate::{
+    Detector, Result, StockPass, TrackError, diagonal_intersection, quad_center, shortest_side,
+};
 
 /// Ids of `DICT_4X4_50` whose mirror image is a rotation of the code itself:
 /// in an image, a mirrored one cannot be told from a printed one.
@@ -102,13 +103,16 @@ pub struct RealSet {
 }
 
 impl RealSet {
-    /// Reads `DIR/set.json`.
+    /// Reads `DIR/set.json`; fails with [`TrackError::ReadSet`] or
+    /// [`TrackError::ParseSet`].
     pub fn load(dir: &Path) -> Result<Self> {
         let path = dir.join("set.json");
-        let text = std::fs::read_to_string(&path)
-            .with_context(|| format!("reading {}", path.display()))?;
+        let text = std::fs::read_to_string(&path).map_err(|source| TrackError::ReadSet {
+            path: path.clone(),
+            source,
+        })?;
         let mut set: Self =
-            serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+            serde_json::from_str(&text).map_err(|source| TrackError::ParseSet { path, source })?;
         set.dir = dir.to_path_buf();
         Ok(set)
     }

@@ -25,13 +25,12 @@
 //! full scan at the latest. The two cameras' full scans are staggered so
 //! that no frame pays for both.
 
-use anyhow::Result;
 use messages::Marker;
 use opencv::core::{Mat, Rect, Size};
 use opencv::imgproc;
 use opencv::prelude::*;
 
-use crate::Detector;
+use crate::{Detector, Result};
 
 /// How far a marker may move between two frames and still be found in its
 /// window, pixels (besides half its side).

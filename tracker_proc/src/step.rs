@@ -2,15 +2,14 @@
 //! memory in, detections or a counted rejection out. The stage's loop only
 //! moves frames and detections between the bus and this step.
 
-use anyhow::Result;
 use messages::{CameraMarkers, FrameHeader, StereoDetections};
 use opencv::boxed_ref::BoxedRef;
 use opencv::core::{Mat, Rect};
 use opencv::prelude::*;
 use runtime::{Rejections, StampOrder};
 
-use crate::Detector;
 use crate::regions::RegionTracker;
+use crate::{Detector, Result, TrackError};
 
 /// Frames between full scans of an image by default (a third of a second
 /// at 30 fps); see [`RegionTracker`].
@@ -113,12 +112,17 @@ impl Tracker {
 
     /// Tracks one stereo frame: checks the header against the payload and
     /// the stamp order, counts frames missed before it, and finds the
-    /// markers of both images, read in place through `Mat` headers.
+    /// markers of both images, read in place through `Mat` headers. A
+    /// malformed or out-of-order frame is [`Tracked::Rejected`], not an
+    /// error; errors are OpenCV's ([`TrackError::OpenCv`],
+    /// [`TrackError::Detection`]) and a panicked right-camera thread
+    /// ([`TrackError::Panicked`]).
     pub fn step(&mut self, header: &FrameHeader, payload: &[u8]) -> Result<Tracked> {
         let _span = tracing::trace_span!("tracker_step", seq = header.seq).entered();
         if let Err(why) = header
             .validate(payload.len())
-            .and_then(|()| self.order.check(header.stamp_ns))
+            .map_err(|e| e.to_string())
+            .and_then(|()| self.order.check(header.stamp_ns).map_err(|e| e.to_string()))
         {
             self.rejections.reject("frame", header.seq, &why);
             return Ok(Tracked::Rejected(why));
@@ -140,7 +144,10 @@ impl Tracker {
         // the left one's here.
         let mut images = payload.chunks_exact(header.image_len());
         let (Some(left), Some(right)) = (images.next(), images.next()) else {
-            anyhow::bail!("frame {}: payload holds fewer than two images", header.seq);
+            return Err(TrackError::BadFrame {
+                seq: header.seq,
+                reason: "payload holds fewer than two images".into(),
+            });
         };
         let [first, second] = &mut self.cameras;
         let (l, r) = std::thread::scope(|s| {
@@ -148,8 +155,7 @@ impl Tracker {
             (first.track(header, left), r.join())
         });
         out.cameras[0] = l?;
-        out.cameras[1] =
-            r.map_err(|_| anyhow::anyhow!("the right camera's detection panicked"))??;
+        out.cameras[1] = r.map_err(|_| TrackError::Panicked { task: "detection" })??;
         Ok(Tracked::Detections(out))
     }
 
@@ -174,7 +180,7 @@ impl Tracker {
                 let r = s.spawn(|| second.catch_up(header, right));
                 first.catch_up(header, left)?;
                 r.join()
-                    .map_err(|_| anyhow::anyhow!("the right camera's full scan panicked"))?
+                    .map_err(|_| TrackError::Panicked { task: "full scan" })?
             });
             return r;
         }

@@ -22,7 +22,8 @@ fn run(args: Args) -> Result<()> {
         kinematics_proc::home(&arm),
         (args.move_ms * 1_000_000) as i64,
         Duration::from_secs_f64(1.0 / args.rate_hz),
-    )
+    )?;
+    Ok(())
 }
 
 fn main() -> ExitCode {

@@ -88,7 +88,7 @@ pub enum CalibrateError {
         rms_px: f64,
     },
     /// The geometry does not determine a solution.
-    #[error("{0}")]
+    #[error(transparent)]
     Geometry(#[from] GeometryError),
 }
 
