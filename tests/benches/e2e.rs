@@ -16,7 +16,9 @@
 //!
 //! Rates 30 to 150 fps. Run: `cargo bench -p tests --bench e2e` (builds the stage binaries
 //! optimised; writes `target/bench/e2e.json`); under `cargo test` one short
-//! run at 30 fps only, to check it works.
+//! run at 30 fps only, to check it works. `MIRROR_BENCH_BINS=DIR` runs the
+//! binaries in DIR instead (another build, e.g. an earlier commit's, to
+//! compare in the same session).
 
 use std::path::Path;
 use std::process::Command;
@@ -70,7 +72,8 @@ fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let (bins, rates, poses): (_, &[f64], _) = if full {
         (
-            tests::release_stage_binaries(),
+            std::env::var_os("MIRROR_BENCH_BINS")
+                .map_or_else(tests::release_stage_binaries, Into::into),
             &[30.0, 60.0, 90.0, 120.0, 150.0],
             POSES_FULL,
         )
