@@ -291,7 +291,10 @@ impl fmt::Display for Method {
 
 /// A method name that is none of [`Method::ALL`]'s.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown method `{0}` (expected paper, joint or joint+kinematics)")]
+#[error(
+    "unknown method `{0}` (expected {known})",
+    known = Method::ALL.map(Method::as_str).join(", ")
+)]
 pub struct UnknownMethod(pub String);
 
 impl FromStr for Method {
