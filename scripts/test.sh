@@ -6,10 +6,11 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 # The independent MCAP reader and the official Foxglove schemas, for the
 # recording tests; OpenCV 5's stock ArUco detector, the real-image test's
-# reference (setup.sh made target/pyenv).
+# reference; PyPI zenoh and rosbags, an independent ROS 2 wire (zenoh, CDR,
+# type hashes) for the ros2 stage's tests (setup.sh made target/pyenv).
 target/pyenv/bin/pip install --quiet --disable-pip-version-check \
     "mcap==1.6.*" "foxglove-schemas-protobuf==0.4.*" "websockets==15.*" \
-    "opencv-contrib-python-headless==5.0.0.93"
+    "opencv-contrib-python-headless==5.0.0.93" "eclipse-zenoh==1.10.*" "rosbags==0.11.*"
 # The official Foxglove WebSocket client library, for the live view's tests.
 if [ ! -d target/node/node_modules/@foxglove/ws-protocol ]; then
     npm install --prefix target/node --no-audit --no-fund --silent \

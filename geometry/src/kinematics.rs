@@ -240,6 +240,14 @@ impl Arm {
         }
     }
 
+    /// The kind of each entry of `q` (a DH table's joints are revolute).
+    pub fn joint_kinds(&self) -> Vec<JointKind> {
+        match &self.model {
+            ArmModel::Dh(joints) => vec![JointKind::Revolute; joints.len()],
+            ArmModel::Chain(c) => c.inputs.iter().map(|j| j.kind).collect(),
+        }
+    }
+
     fn check_lengths(&self, q: &[f64], offsets: &[f64]) -> Result<(), GeometryError> {
         let n = self.dof();
         if q.len() != n {

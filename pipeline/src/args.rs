@@ -34,6 +34,11 @@ pub struct Args {
     /// E.g. "target/pyenv/bin/python python/examples/sim_arm.py".
     #[arg(long)]
     pub arm_driver: Option<String>,
+    /// A ROS 2 robot on rmw_zenoh is the arm: the zenoh endpoint of its
+    /// router (rmw_zenohd), e.g. tcp/robot.local:7447 (overrides the
+    /// config's `[ros2] endpoint`; the rest of `[ros2]` applies).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub ros2: Option<String>,
     /// Base SCHED_FIFO priority (1-97) of the stages every sample waits for:
     /// the camera and arm driver at it, the tracker, kinematics (and bridge)
     /// one above, the mirror stage two above; 0: normal scheduling

@@ -67,6 +67,10 @@ pub struct Config {
     /// absent: the built-in simulated arm, `sim_arm`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arm_driver: Option<String>,
+    /// A ROS 2 robot on rmw_zenoh as the arm driver (`[ros2]`, or
+    /// `pipeline --ros2 ENDPOINT`): `ros2_proc arm`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ros2: Option<Ros2Config>,
     /// A run split across a robot and a workstation (`pipeline --side`):
     /// where the tracker runs and how frames cross.
     #[serde(default)]
@@ -78,6 +82,66 @@ pub struct Config {
     /// (`ulimit -r`); without, the launcher says so and runs them normally.
     #[serde(default = "default_realtime_priority")]
     pub realtime_priority: u8,
+}
+
+/// The ROS 2 graph the robot is on (`[ros2]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ros2Config {
+    /// Zenoh endpoint of the robot's router (`rmw_zenohd`), e.g.
+    /// `tcp/robot.local:7447`.
+    pub endpoint: String,
+    /// ROS domain id; absent: this environment's `ROS_DOMAIN_ID`, else 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub domain: Option<u32>,
+    /// Our node's namespace.
+    #[serde(default = "default_namespace")]
+    pub namespace: String,
+    /// The robot's joint-state topic.
+    #[serde(default = "default_joint_states")]
+    pub joint_states: String,
+    /// The trajectory controller's topic.
+    #[serde(default = "default_trajectory")]
+    pub trajectory: String,
+}
+
+impl Ros2Config {
+    /// The graph at `endpoint` with every other setting at its default.
+    pub fn at(endpoint: &str) -> Self {
+        Ros2Config {
+            endpoint: endpoint.into(),
+            domain: None,
+            namespace: default_namespace(),
+            joint_states: default_joint_states(),
+            trajectory: default_trajectory(),
+        }
+    }
+
+    /// The domain: the config's, else `ROS_DOMAIN_ID`, else 0.
+    pub fn domain(&self) -> Result<u32> {
+        if let Some(d) = self.domain {
+            return Ok(d);
+        }
+        match std::env::var("ROS_DOMAIN_ID") {
+            Ok(v) if !v.trim().is_empty() => v
+                .trim()
+                .parse()
+                .with_context(|| format!("ROS_DOMAIN_ID={v:?} is not a domain id")),
+            _ => Ok(0),
+        }
+    }
+}
+
+fn default_namespace() -> String {
+    "/".into()
+}
+
+fn default_joint_states() -> String {
+    "/joint_states".into()
+}
+
+fn default_trajectory() -> String {
+    "/joint_trajectory_controller/joint_trajectory".into()
 }
 
 /// `sim_arm`'s joint-position rate unless the config says: that of a
@@ -105,6 +169,8 @@ pub struct Overrides {
     /// Camera frame rate, Hz.
     pub fps: Option<f64>,
     pub arm_driver: Option<String>,
+    /// The ROS 2 robot's endpoint (`--ros2`).
+    pub ros2: Option<String>,
     /// Real-time priority of the stages between frame and sample.
     pub realtime_priority: Option<u8>,
 }
@@ -123,6 +189,7 @@ impl Config {
             method,
             fps,
             arm_driver,
+            ros2,
             realtime_priority,
         } = overrides;
         config.mirrors = mirrors.unwrap_or(config.mirrors);
@@ -130,6 +197,21 @@ impl Config {
         config.method = method.unwrap_or(config.method);
         config.fps = fps.unwrap_or(config.fps);
         config.arm_driver = arm_driver.or(config.arm_driver);
+        if let Some(endpoint) = ros2 {
+            match &mut config.ros2 {
+                Some(r) => r.endpoint = endpoint,
+                None => config.ros2 = Some(Ros2Config::at(&endpoint)),
+            }
+        }
+        if config.ros2.is_some() && config.arm_driver.is_some() {
+            bail!(
+                "{}: both arm_driver and ros2 name the arm driver; give one",
+                path.display()
+            );
+        }
+        if let Some(r) = &config.ros2 {
+            r.domain()?;
+        }
         config.realtime_priority = realtime_priority.unwrap_or(config.realtime_priority);
         if let Some(command) = &config.arm_driver {
             let words = shell_words::split(command)

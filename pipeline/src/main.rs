@@ -56,6 +56,7 @@ fn run(args: Args) -> Result<()> {
                 (args.poses.is_some(), "--poses"),
                 (args.fps.is_some(), "--fps"),
                 (args.arm_driver.is_some(), "--arm-driver"),
+                (args.ros2.is_some(), "--ros2"),
             ] {
                 if given {
                     bail!("{flag} cannot be used with --replay: the recording fixes it");
@@ -71,6 +72,7 @@ fn run(args: Args) -> Result<()> {
         method: args.method,
         fps: args.fps,
         arm_driver: args.arm_driver,
+        ros2: args.ros2,
         realtime_priority: args.realtime_priority,
     };
     let config_path = replay

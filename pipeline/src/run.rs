@@ -201,15 +201,29 @@ impl Run {
                 ..Default::default()
             }
             .into(),
-            match config.arm_driver.as_deref() {
-                None => stages::sim_arm::Args {
+            match (&config.ros2, config.arm_driver.as_deref()) {
+                (Some(ros2), _) => stages::ros2::ArmArgs {
+                    prefix: prefix.clone(),
+                    rig: rig.clone(),
+                    graph: stages::ros2::Graph {
+                        endpoint: ros2.endpoint.clone(),
+                        domain: ros2.domain()?,
+                        namespace: ros2.namespace.clone(),
+                    },
+                    joint_states: ros2.joint_states.clone(),
+                    trajectory: ros2.trajectory.clone(),
+                    move_ms: config.move_ms,
+                    silent_ms: 3000,
+                }
+                .into(),
+                (None, None) => stages::sim_arm::Args {
                     prefix: prefix.clone(),
                     rig: rig.clone(),
                     move_ms: config.move_ms,
                     rate_hz: config.arm_rate_hz,
                 }
                 .into(),
-                Some(command) => stages::arm_driver::Args {
+                (None, Some(command)) => stages::arm_driver::Args {
                     command: shell_words::split(command)?,
                     prefix: prefix.clone(),
                     rig: rig.clone(),

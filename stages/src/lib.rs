@@ -30,6 +30,7 @@ pub mod kinematics;
 pub mod mirror;
 pub mod recorder;
 pub mod replay;
+pub mod ros2;
 pub mod sim_arm;
 pub mod tracker;
 
@@ -270,6 +271,8 @@ stage_table! {
     Kinematics(kinematics::Kinematics),
     /// `bridge`: this side's topics to the other host of a split run.
     Bridge(bridge::Bridge),
+    /// `ros2_proc arm`: a ROS 2 robot's arm as the arm driver.
+    Ros2Arm(ros2::Ros2Arm),
 }
 
 impl StageArgs {
@@ -389,10 +392,11 @@ mod tests {
     fn subscribers_are_counted_from_the_declarations() {
         let stages = StageArgs::examples();
         // The recorder subscribes to everything; the mirror stage and the
-        // bridge (which sends them) to joint states; the camera and both
-        // arm drivers to pose goals.
+        // bridge (which sends them) to joint states; the camera and the
+        // three arm drivers (simulated, a user's, a ROS 2 robot's) to pose
+        // goals.
         assert_eq!(subscribers_of(&stages, TopicId::JointState), 3);
-        assert_eq!(subscribers_of(&stages, TopicId::PoseGoal), 4);
+        assert_eq!(subscribers_of(&stages, TopicId::PoseGoal), 5);
         assert_eq!(subscribers_of(&stages, TopicId::Frames), 3);
         assert_eq!(subscribers_of(&stages, TopicId::Samples), 1);
     }

@@ -42,3 +42,20 @@ pub fn python_with_driver_sdk() -> PathBuf {
     );
     python
 }
+
+/// The virtual environment's Python with PyPI `eclipse-zenoh` and
+/// `rosbags` (`scripts/test.sh` installs them): an independent ROS 2 wire.
+/// Panics if it cannot import them.
+pub fn python_with_ros2_wire() -> PathBuf {
+    let python = venv_python_path();
+    let ok = Command::new(&python)
+        .args(["-c", "import zenoh, rosbags"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        ok,
+        "{} cannot import zenoh and rosbags: run `bash scripts/test.sh` once (it installs them)",
+        python.display()
+    );
+    python
+}

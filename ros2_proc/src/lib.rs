@@ -1,0 +1,12 @@
+//! The pipeline on a ROS 2 graph running on rmw_zenoh, with no ROS
+//! installed: rmw_zenoh's wire format ([`wire`]: keys, CDR, attachments,
+//! liveliness tokens), the ROS 2 messages we speak ([`msgs`], their hashes
+//! in [`types`]), a node ([`node`]), the wall/monotonic stamp mapping
+//! ([`clock`]) and the arm driver ([`arm`]).
+
+pub mod arm;
+pub mod clock;
+pub mod msgs;
+pub mod node;
+pub mod types;
+pub mod wire;

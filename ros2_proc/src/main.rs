@@ -1,0 +1,61 @@
+//! `ros2_proc`: the pipeline's stages on a ROS 2 graph over rmw_zenoh.
+
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use ros2_proc::arm::{self, ArmOptions};
+use ros2_proc::node::{Node, NodeOptions};
+
+/// Join a ROS 2 graph that runs on rmw_zenoh (Jazzy or later) with no ROS
+/// installed.
+#[derive(Debug, Parser)]
+#[command(version, about)]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Be the arm driver of a ROS 2 robot: its joint states in, each pose
+    /// goal out as a JointTrajectory.
+    Arm(stages::ros2::ArmArgs),
+}
+
+fn arm(args: stages::ros2::ArmArgs) -> Result<()> {
+    let rig = formats::rig::read(&args.rig)?;
+    let Some(robot_arm) = rig.arm else {
+        bail!("{}: the rig has no [arm]", args.rig.display())
+    };
+    let node = Node::open(&NodeOptions {
+        endpoint: args.graph.endpoint.clone(),
+        domain: args.graph.domain,
+        namespace: args.graph.namespace.clone(),
+        name: "mirror_arm".into(),
+    })?;
+    arm::run(
+        &node,
+        &ArmOptions {
+            prefix: args.prefix,
+            joints: robot_arm.joint_names(),
+            kinds: robot_arm.joint_kinds(),
+            joint_states: args.joint_states,
+            trajectory: args.trajectory,
+            move_ns: i64::try_from(args.move_ms)
+                .ok()
+                .and_then(|ms| ms.checked_mul(1_000_000))
+                .context("--move-ms is too large")?,
+            silent: Duration::from_millis(args.silent_ms),
+        },
+    )?;
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    runtime::stage_main("ros2_proc", || match args.command {
+        Command::Arm(a) => arm(a),
+    })
+}

@@ -1,0 +1,108 @@
+//! `ros2_proc`: the pipeline's stages on a ROS 2 graph over rmw_zenoh.
+//! `ros2_proc arm` is the arm driver of a ROS 2 robot: its `/joint_states`
+//! in, `JointTrajectory` goals out.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use runtime::Ports;
+use serde::Serialize;
+
+use crate::sim_arm::DRIVER_PORTS;
+use crate::{FixedPorts, Home, RestartPolicy, Side, Stage};
+
+/// Where the ROS 2 graph is and who we are on it: what every `ros2_proc`
+/// stage takes.
+#[derive(Debug, Clone, PartialEq, Serialize, clap::Args)]
+pub struct Graph {
+    /// Zenoh endpoint of the robot's router (`rmw_zenohd`) or a peer.
+    #[arg(long, default_value = "tcp/localhost:7447")]
+    pub endpoint: String,
+    /// ROS domain id (the robot's `ROS_DOMAIN_ID`; `pipeline` passes its
+    /// own environment's).
+    #[arg(long, default_value_t = 0)]
+    pub domain: u32,
+    /// Namespace of our node (relative topic names are under it).
+    #[arg(long, default_value = "/")]
+    pub namespace: String,
+}
+
+impl Default for Graph {
+    fn default() -> Self {
+        Graph {
+            endpoint: "tcp/localhost:7447".into(),
+            domain: 0,
+            namespace: "/".into(),
+        }
+    }
+}
+
+/// Drive a ROS 2 arm: publish its `/joint_states` as joint positions and
+/// send each pose goal as a `JointTrajectory`.
+#[derive(Debug, Clone, PartialEq, Serialize, clap::Args)]
+pub struct ArmArgs {
+    /// Service prefix of the pipeline.
+    #[arg(long, default_value = "default")]
+    pub prefix: String,
+    /// Rig file (TOML): the arm's joint names (its URDF's, or joint1..N).
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// The graph.
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub graph: Graph,
+    /// Topic of the robot's joint states.
+    #[arg(long, default_value = "/joint_states")]
+    pub joint_states: String,
+    /// Topic the trajectory controller takes trajectories on.
+    #[arg(long, default_value = "/joint_trajectory_controller/joint_trajectory")]
+    pub trajectory: String,
+    /// `time_from_start` of each goal's trajectory point, ms.
+    #[arg(long, default_value_t = 300)]
+    pub move_ms: u64,
+    /// Stop with an error when no joint state has come for this long, ms.
+    #[arg(long, default_value_t = 3000)]
+    pub silent_ms: u64,
+}
+
+/// A ROS 2 robot's arm, as the arm driver.
+pub struct Ros2Arm;
+
+impl FixedPorts for Ros2Arm {
+    const PORTS: Ports<'static> = DRIVER_PORTS;
+}
+
+impl Stage for Ros2Arm {
+    type Args = ArmArgs;
+    const BINARY: &'static str = "ros2_proc";
+    const SUBCOMMAND: Option<&'static str> = Some("arm");
+    const HOME: Home = Home::On(Side::Robot);
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(0);
+    /// It stops when the plan is finished.
+    const RESTART: RestartPolicy = RestartPolicy::Finishes;
+    const STOP_GRACE: Duration = Duration::from_secs(3);
+
+    fn ports(_: &ArmArgs) -> Ports<'_> {
+        Self::PORTS
+    }
+
+    fn prefix(args: &ArmArgs) -> &str {
+        &args.prefix
+    }
+
+    fn example() -> ArmArgs {
+        ArmArgs {
+            prefix: "p".into(),
+            rig: "r.toml".into(),
+            graph: Graph {
+                endpoint: "tcp/10.0.0.2:7447".into(),
+                domain: 7,
+                namespace: "/robot1".into(),
+            },
+            joint_states: "joint_states".into(),
+            trajectory: "/arm_controller/joint_trajectory".into(),
+            move_ms: 450,
+            silent_ms: 2000,
+        }
+    }
+}

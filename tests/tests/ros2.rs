@@ -1,0 +1,302 @@
+//! The ROS 2 stage against an independent implementation of the wire:
+//! PyPI `rosbags` (CDR codec, Jazzy definitions, RIHS01 hashes) and PyPI
+//! `eclipse-zenoh`. Nothing here checks our encoder against itself.
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use ros2_proc::msgs::*;
+use ros2_proc::types::RosType;
+use ros2_proc::wire;
+use tests::python::python_with_ros2_wire;
+use tests::{KillOnDrop, stage_binaries, unique_prefix};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn python(script: &str) -> Command {
+    let mut c = Command::new(python_with_ros2_wire());
+    c.arg(repo().join(script));
+    c
+}
+
+fn header(sec: i32, nanosec: u32, frame: &str) -> Header {
+    Header {
+        stamp: Time { sec, nanosec },
+        frame_id: frame.into(),
+    }
+}
+
+/// The values `tests/ros2/rosbags_vectors.py` encodes.
+fn our_vectors() -> Vec<(&'static str, Vec<u8>)> {
+    fn entry<M: RosType>(m: M) -> (&'static str, Vec<u8>) {
+        (M::NAME, wire::encode(&m).unwrap())
+    }
+    vec![
+        entry(JointState {
+            header: header(1, 2, "base"),
+            name: vec!["j1".into(), "j2".into()],
+            position: vec![0.5, -1.0],
+            velocity: vec![],
+            effort: vec![3.0],
+        }),
+        entry(JointTrajectory {
+            header: header(0, 0, ""),
+            joint_names: vec!["shoulder".into(), "elbow".into(), "wrist".into()],
+            points: vec![JointTrajectoryPoint {
+                positions: vec![0.1, 0.2, 0.3],
+                time_from_start: Duration {
+                    sec: 0,
+                    nanosec: 300_000_000,
+                },
+                ..Default::default()
+            }],
+        }),
+        entry(Image {
+            header: header(1_700_000_000, 5, "left"),
+            height: 2,
+            width: 3,
+            encoding: "mono8".into(),
+            is_bigendian: 0,
+            step: 3,
+            data: vec![0, 1, 2, 250, 251, 255],
+        }),
+        entry(CameraInfo {
+            header: header(7, 8, "left"),
+            height: 480,
+            width: 640,
+            distortion_model: "plumb_bob".into(),
+            d: vec![0.1, -0.2, 0.0, 0.0, 0.05],
+            k: [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0],
+            r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            p: [
+                500.0, 0.0, 320.0, 0.0, 0.0, 500.0, 240.0, 0.0, 0.0, 0.0, 1.0, 0.0,
+            ],
+            binning_x: 0,
+            binning_y: 0,
+            roi: RegionOfInterest {
+                x_offset: 1,
+                y_offset: 2,
+                height: 3,
+                width: 4,
+                do_rectify: true,
+            },
+        }),
+        entry(TfMessage {
+            transforms: vec![TransformStamped {
+                header: header(3, 4, "world"),
+                child_frame_id: "mirror".into(),
+                transform: Transform {
+                    translation: Vector3 {
+                        x: 0.1,
+                        y: 0.2,
+                        z: 0.3,
+                    },
+                    rotation: Quaternion {
+                        x: 0.0,
+                        y: 0.0,
+                        z: 0.6,
+                        w: 0.8,
+                    },
+                },
+            }],
+        }),
+        entry(PointStamped {
+            header: header(9, 10, "world"),
+            point: Point {
+                x: -0.5,
+                y: 0.25,
+                z: 1.0,
+            },
+        }),
+    ]
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn unhex(s: &str) -> Vec<u8> {
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+#[test]
+fn cdr_payloads_are_rosbags_byte_for_byte() {
+    let out = python("tests/ros2/rosbags_vectors.py").output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let theirs: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ours = our_vectors();
+    assert_eq!(ours.len(), theirs.as_object().unwrap().len());
+    for (name, bytes) in &ours {
+        let expected = theirs[name].as_str().unwrap();
+        assert_eq!(hex(bytes), expected, "{name}: ours vs rosbags");
+    }
+    // And rosbags' bytes decode to our values.
+    let decoded = |name: &str| unhex(theirs[name].as_str().unwrap());
+    let state: JointState = wire::decode(&decoded(JointState::NAME)).unwrap();
+    assert_eq!(state.position, [0.5, -1.0]);
+    assert_eq!(state.effort, [3.0]);
+    let info: CameraInfo = wire::decode(&decoded(CameraInfo::NAME)).unwrap();
+    assert_eq!(
+        (info.k[2], info.p[6], info.roi.do_rectify),
+        (320.0, 240.0, true)
+    );
+    let tf: TfMessage = wire::decode(&decoded(TfMessage::NAME)).unwrap();
+    assert_eq!(tf.transforms[0].child_frame_id, "mirror");
+    assert_eq!(tf.transforms[0].transform.rotation.w, 0.8);
+    let image: Image = wire::decode(&decoded(Image::NAME)).unwrap();
+    assert_eq!(image.data, [0, 1, 2, 250, 251, 255]);
+}
+
+#[test]
+fn the_type_table_is_what_rosbags_computes() {
+    let out = python("scripts/ros2_types.py").output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let generated = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        generated == ros2_proc::types::TABLE_JSON,
+        "ros2_proc/ros2_types.json is stale: run `target/pyenv/bin/python scripts/ros2_types.py > ros2_proc/ros2_types.json`"
+    );
+}
+
+/// A free TCP port on the loopback.
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// A ROS 2 arm (Python: eclipse-zenoh and rosbags, behaving like
+/// `joint_trajectory_controller`, with an extra joint, shuffled order, and
+/// samples without attachment dropped) plays the arm of a whole run through
+/// `pipeline --ros2`: the calibration completes with the plane within 0.5
+/// deg and 5 mm of the truth, and the graph shows our node and endpoints in
+/// rmw_zenoh's token format.
+#[test]
+fn a_ros2_arm_plays_the_arm_of_a_whole_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut arm = KillOnDrop(
+        python("tests/ros2/ros2_arm.py")
+            .args([
+                "--listen",
+                &endpoint,
+                "--joints",
+                "joint1,joint2,joint3,joint4",
+            ])
+            .args(["--home", "0.6,0.0,0.0,0.0"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = BufReader::new(arm.0.stdout.take().unwrap()).lines();
+    let ready = lines.next().unwrap().unwrap();
+    assert!(ready.contains("ready"), "{ready}");
+
+    let config = dir.path().join("pipeline.toml");
+    std::fs::write(
+        &config,
+        "preset = \"nico\"\nmirrors = [0]\ntrain_poses = 10\ntest_poses = 4\ndirect_poses = 2\n\
+         method = \"joint+kinematics\"\nsource = \"sim\"\nfps = 30.0\nmove_ms = 300\ndwell_ms = 250\n\
+         seed = 5\nmin_train = 8\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let output = Command::new(stage_binaries().join("pipeline"))
+        .args(["--config", config.to_str().unwrap()])
+        .args(["--out", out.to_str().unwrap()])
+        .args(["--prefix", &unique_prefix("ros2_arm")])
+        .args(["--no-record", "--report", "json", "--ros2", &endpoint])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    let log = std::fs::read_to_string(out.join("mirror0/stages.log")).unwrap_or_default();
+    assert!(output.status.success(), "{stderr}\n{log}");
+
+    // The arm's own account: every trajectory carried a good attachment,
+    // sequence numbers from 1 without a gap.
+    drop(arm.0.stdin.take());
+    let summary: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    arm.0.wait().unwrap();
+    let goals = summary["trajectories"].as_u64().unwrap();
+    assert!(goals >= 16, "{summary}");
+    assert_eq!(summary["without_attachment"], 0, "{summary}");
+    assert_eq!(summary["bad_attachment"], 0, "{summary}");
+    assert_eq!(summary["sequences_ok"], true, "{summary}");
+
+    let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let placement = &report["placements"][0];
+    let (angle, distance) = (
+        placement["plane_angle_deg"].as_f64().unwrap(),
+        placement["plane_distance_mm"].as_f64().unwrap(),
+    );
+    assert!(
+        angle < 0.5 && distance < 5.0,
+        "plane off by {angle} deg / {distance} mm"
+    );
+
+    // The graph, as rmw_zenoh's own discovery reads it.
+    let tokens: Vec<&str> = summary["tokens"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_str().unwrap())
+        .collect();
+    let ours = |kind: &str, tail: &str| {
+        tokens.iter().any(|t| {
+            let parts: Vec<&str> = t.split('/').collect();
+            parts.len() >= 9
+                && parts[0] == "@ros2_lv"
+                && parts[1] == "0"
+                && parts[5] == kind
+                && parts[6] == "%"
+                && parts[8] == "mirror_arm"
+                && t.ends_with(tail)
+        })
+    };
+    assert!(ours("NN", "/mirror_arm"), "{tokens:?}");
+    let trajectory = JointTrajectory::info();
+    assert!(
+        ours(
+            "MP",
+            &format!(
+                "/%joint_trajectory_controller%joint_trajectory/{}/{}/::,10:,:,:,,",
+                trajectory.dds_name, trajectory.hash
+            )
+        ),
+        "{tokens:?}"
+    );
+    let state = JointState::info();
+    assert!(
+        ours(
+            "MS",
+            &format!(
+                "/%joint_states/{}/{}/::,10:,:,:,,",
+                state.dds_name, state.hash
+            )
+        ),
+        "{tokens:?}"
+    );
+    let settle = &placement["stages"]["kinematics_proc"]["latency"]["goal_to_settled"];
+    eprintln!(
+        "ros2 arm: plane {angle:.4} deg / {distance:.3} mm; {goals} trajectories; goal to settled {settle}"
+    );
+    let _ = std::io::stderr().flush();
+}
