@@ -117,8 +117,35 @@ pub struct Image {
     /// Bytes per row.
     pub step: u32,
     /// The pixels, `step * height` bytes.
-    #[serde(with = "serde_bytes")]
+    #[serde(with = "byte_sequence")]
     pub data: Vec<u8>,
+}
+
+/// A `uint8[]` written in one piece: its `u32` count, then the bytes. (The
+/// CDR codec writes serde's bytes raw, with no count, and a `Vec<u8>` as a
+/// sequence would go byte by byte.)
+mod byte_sequence {
+    use serde::{Deserializer, Serializer, ser::SerializeTuple};
+
+    struct Raw<'a>(&'a [u8]);
+
+    impl serde::Serialize for Raw<'_> {
+        fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+            s.serialize_bytes(self.0)
+        }
+    }
+
+    pub fn serialize<S: Serializer>(bytes: &[u8], s: S) -> Result<S::Ok, S::Error> {
+        let count = u32::try_from(bytes.len()).map_err(serde::ser::Error::custom)?;
+        let mut t = s.serialize_tuple(2)?;
+        t.serialize_element(&count)?;
+        t.serialize_element(&Raw(bytes))?;
+        t.end()
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<u8>, D::Error> {
+        serde_bytes::deserialize(d)
+    }
 }
 
 /// `sensor_msgs/msg/RegionOfInterest`.
