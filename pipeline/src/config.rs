@@ -103,6 +103,13 @@ pub struct Ros2Config {
     /// The trajectory controller's topic.
     #[serde(default = "default_trajectory")]
     pub trajectory: String,
+    /// Whether each calibration goes out on `/tf_static` and each located
+    /// object on `located_topic` (`ros2_proc tf`).
+    #[serde(default = "default_true")]
+    pub tf: bool,
+    /// Topic of the located objects (`geometry_msgs/PointStamped`).
+    #[serde(default = "default_located")]
+    pub located_topic: String,
 }
 
 impl Ros2Config {
@@ -114,7 +121,18 @@ impl Ros2Config {
             namespace: default_namespace(),
             joint_states: default_joint_states(),
             trajectory: default_trajectory(),
+            tf: true,
+            located_topic: default_located(),
         }
+    }
+
+    /// The graph, as `ros2_proc` takes it.
+    pub fn graph(&self) -> Result<stages::ros2::Graph> {
+        Ok(stages::ros2::Graph {
+            endpoint: self.endpoint.clone(),
+            domain: self.domain()?,
+            namespace: self.namespace.clone(),
+        })
     }
 
     /// The domain: the config's, else `ROS_DOMAIN_ID`, else 0.
@@ -138,6 +156,14 @@ fn default_namespace() -> String {
 
 fn default_joint_states() -> String {
     "/joint_states".into()
+}
+
+fn default_true() -> bool {
+    true
+}
+
+fn default_located() -> String {
+    "/mirror/located".into()
 }
 
 fn default_trajectory() -> String {

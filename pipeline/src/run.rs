@@ -179,6 +179,18 @@ impl Run {
                 .into(),
             );
         }
+        if let Some(ros2) = config.ros2.as_ref().filter(|r| r.tf) {
+            consumers.push(
+                stages::ros2::TfArgs {
+                    prefix: prefix.clone(),
+                    rig: rig.clone(),
+                    graph: ros2.graph()?,
+                    tf_static: "/tf_static".into(),
+                    located: ros2.located_topic.clone(),
+                }
+                .into(),
+            );
+        }
         consumers.extend([
             stages::mirror::Args {
                 method: config.method,
@@ -205,11 +217,7 @@ impl Run {
                 (Some(ros2), _) => stages::ros2::ArmArgs {
                     prefix: prefix.clone(),
                     rig: rig.clone(),
-                    graph: stages::ros2::Graph {
-                        endpoint: ros2.endpoint.clone(),
-                        domain: ros2.domain()?,
-                        namespace: ros2.namespace.clone(),
-                    },
+                    graph: ros2.graph()?,
                     joint_states: ros2.joint_states.clone(),
                     trajectory: ros2.trajectory.clone(),
                     move_ms: config.move_ms,

@@ -2,11 +2,12 @@
 //! installed: rmw_zenoh's wire format ([`wire`]: keys, CDR, attachments,
 //! liveliness tokens), the ROS 2 messages we speak ([`msgs`], their hashes
 //! in [`types`]), a node ([`node`]), the wall/monotonic stamp mapping
-//! ([`clock`]) and the arm driver ([`arm`]).
+//! ([`clock`]), the arm driver ([`arm`]) and the results out ([`tf`]).
 
 pub mod arm;
 pub mod clock;
 pub mod msgs;
 pub mod node;
+pub mod tf;
 pub mod types;
 pub mod wire;

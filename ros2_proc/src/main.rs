@@ -7,6 +7,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use ros2_proc::arm::{self, ArmOptions};
 use ros2_proc::node::{Node, NodeOptions};
+use ros2_proc::tf::{self, TfOptions};
 
 /// Join a ROS 2 graph that runs on rmw_zenoh (Jazzy or later) with no ROS
 /// installed.
@@ -22,6 +23,9 @@ enum Command {
     /// Be the arm driver of a ROS 2 robot: its joint states in, each pose
     /// goal out as a JointTrajectory.
     Arm(stages::ros2::ArmArgs),
+    /// Publish each calibration on /tf_static (latched) and each located
+    /// object as a PointStamped.
+    Tf(stages::ros2::TfArgs),
 }
 
 fn arm(args: stages::ros2::ArmArgs) -> Result<()> {
@@ -53,9 +57,30 @@ fn arm(args: stages::ros2::ArmArgs) -> Result<()> {
     Ok(())
 }
 
+fn tf(args: stages::ros2::TfArgs) -> Result<()> {
+    let rig = formats::rig::read(&args.rig)?;
+    let node = Node::open(&NodeOptions {
+        endpoint: args.graph.endpoint.clone(),
+        domain: args.graph.domain,
+        namespace: args.graph.namespace.clone(),
+        name: "mirror_calibration".into(),
+    })?;
+    tf::run(
+        &node,
+        &rig,
+        &TfOptions {
+            prefix: args.prefix,
+            tf_static: args.tf_static,
+            located: args.located,
+        },
+    )?;
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     runtime::stage_main("ros2_proc", || match args.command {
         Command::Arm(a) => arm(a),
+        Command::Tf(a) => tf(a),
     })
 }

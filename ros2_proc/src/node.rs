@@ -9,8 +9,9 @@ use std::time::Duration;
 use zenoh::Wait;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::liveliness::LivelinessToken;
-use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
+use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig, MissDetectionConfig};
 
 use crate::clock::wall_ns;
 use crate::types::{HUMBLE_HASH, RosType, TypeInfo};
@@ -146,9 +147,22 @@ impl Node {
         let ty = M::info();
         let token = self.entity_token(EntityKind::Publisher, &topic, &ty, qos);
         let key = wire::topic_key(self.id.domain, &topic, &ty);
-        let publisher = self
-            .session
-            .declare_publisher(key.clone())
+        // Every rmw_zenoh publisher is an advanced publisher; a
+        // TRANSIENT_LOCAL one keeps its last `depth` samples for late
+        // subscribers, announces itself and, if reliable, sends sporadic
+        // heartbeats (`D/rmw_publisher_data.cpp:49,114-150`).
+        let mut builder = self.session.declare_publisher(key.clone()).advanced();
+        if qos.transient_local {
+            builder = builder
+                .cache(CacheConfig::default().max_samples(qos.depth as usize))
+                .publisher_detection();
+            if qos.reliable {
+                builder = builder.sample_miss_detection(
+                    MissDetectionConfig::default().sporadic_heartbeat(Duration::from_millis(500)),
+                );
+            }
+        }
+        let publisher = builder
             .wait()
             .map_err(zenoh_err(format!("declare a publisher on {key}")))?;
         Ok(RosPublisher {
@@ -192,7 +206,7 @@ impl Node {
 
 /// Publishes `M` on one topic, each sample with its attachment.
 pub struct RosPublisher<M> {
-    publisher: Publisher<'static>,
+    publisher: AdvancedPublisher<'static>,
     gid: [u8; 16],
     sequence: AtomicI64,
     topic: String,

@@ -273,6 +273,8 @@ stage_table! {
     Bridge(bridge::Bridge),
     /// `ros2_proc arm`: a ROS 2 robot's arm as the arm driver.
     Ros2Arm(ros2::Ros2Arm),
+    /// `ros2_proc tf`: calibrations and located objects out to ROS 2.
+    Ros2Tf(ros2::Ros2Tf),
 }
 
 impl StageArgs {

@@ -1,10 +1,12 @@
 //! `ros2_proc`: the pipeline's stages on a ROS 2 graph over rmw_zenoh.
 //! `ros2_proc arm` is the arm driver of a ROS 2 robot: its `/joint_states`
-//! in, `JointTrajectory` goals out.
+//! in, `JointTrajectory` goals out. `ros2_proc tf` puts the calibration on
+//! `/tf_static` and the located objects on a topic.
 
 use std::path::PathBuf;
 use std::time::Duration;
 
+use messages::topics::TopicId;
 use runtime::Ports;
 use serde::Serialize;
 
@@ -103,6 +105,70 @@ impl Stage for Ros2Arm {
             trajectory: "/arm_controller/joint_trajectory".into(),
             move_ms: 450,
             silent_ms: 2000,
+        }
+    }
+}
+
+/// Publish each calibration on `/tf_static` (latched) and each located
+/// object as a `geometry_msgs/PointStamped`.
+#[derive(Debug, Clone, PartialEq, Serialize, clap::Args)]
+pub struct TfArgs {
+    /// Service prefix of the pipeline.
+    #[arg(long, default_value = "default")]
+    pub prefix: String,
+    /// Rig file (TOML): the cameras' intrinsics and poses.
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// The graph.
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub graph: Graph,
+    /// Topic of the latched transforms.
+    #[arg(long, default_value = "/tf_static")]
+    pub tf_static: String,
+    /// Topic of the located objects.
+    #[arg(long, default_value = "/mirror/located")]
+    pub located: String,
+}
+
+/// The calibration and located objects out to a ROS 2 graph.
+pub struct Ros2Tf;
+
+impl FixedPorts for Ros2Tf {
+    const PORTS: Ports<'static> = Ports {
+        subscribes: &[TopicId::Calibration, TopicId::Located],
+        publishes: &[],
+    };
+}
+
+impl Stage for Ros2Tf {
+    type Args = TfArgs;
+    const BINARY: &'static str = "ros2_proc";
+    const SUBCOMMAND: Option<&'static str> = Some("tf");
+    /// Where the calibrations are made.
+    const HOME: Home = Home::On(Side::Workstation);
+    const SAMPLE_PATH_DEPTH: Option<u8> = None;
+    const RESTART: RestartPolicy = RestartPolicy::Service;
+
+    fn ports(_: &TfArgs) -> Ports<'_> {
+        Self::PORTS
+    }
+
+    fn prefix(args: &TfArgs) -> &str {
+        &args.prefix
+    }
+
+    fn example() -> TfArgs {
+        TfArgs {
+            prefix: "p".into(),
+            rig: "r.toml".into(),
+            graph: Graph {
+                endpoint: "tcp/10.0.0.2:7447".into(),
+                domain: 3,
+                namespace: "/".into(),
+            },
+            tf_static: "/tf_static".into(),
+            located: "/robot1/located".into(),
         }
     }
 }

@@ -25,11 +25,13 @@ import time
 
 import numpy as np
 import zenoh
+import zenoh.ext
 from rosbags.typesys import Stores, get_typestore
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 JOINT_STATE = "sensor_msgs/msg/JointState"
 TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
+TF = "tf2_msgs/msg/TFMessage"
 
 
 def dds_name(name):
@@ -80,6 +82,7 @@ def main():
     p.add_argument("--joint-states", default="/joint_states")
     p.add_argument("--rate", type=float, default=100.0)
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--tf-static", default="/tf_static")
     args = p.parse_args()
 
     joints = args.joints.split(",")
@@ -126,6 +129,54 @@ def main():
         counts["trajectories"] += 1
 
     _sub = session.declare_subscriber(key(args.domain, args.trajectory, TRAJECTORY), on_trajectory)
+
+    # /tf_static, as a live subscriber sees it, and as a node started after
+    # the first calibration sees it (TRANSIENT_LOCAL: rmw_zenoh's advanced
+    # subscriber with history, in a session of its own).
+    tf_key = key(args.domain, args.tf_static, TF)
+
+    def transforms(sample):
+        msg = STORE.deserialize_cdr(sample.payload.to_bytes(), TF)
+        return [{"parent": t.header.frame_id, "child": t.child_frame_id,
+                 "stamp_ns": t.header.stamp.sec * 10**9 + t.header.stamp.nanosec,
+                 "t": [t.transform.translation.x, t.transform.translation.y, t.transform.translation.z],
+                 "q": [t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z,
+                       t.transform.rotation.w]} for t in msg.transforms]
+
+    counts["tf_static"] = 0
+    counts["late_joiner_tf"] = None
+
+    def late_joiner():
+        time.sleep(0.5)
+        late_conf = zenoh.Config()
+        late_conf.insert_json5("mode", '"client"')
+        late_conf.insert_json5("connect/endpoints", json.dumps([args.listen]))
+        late_conf.insert_json5("scouting/multicast/enabled", "false")
+        late = zenoh.open(late_conf)
+        got = threading.Event()
+
+        def on_late(sample):
+            if sample.attachment is not None and counts["late_joiner_tf"] is None:
+                counts["late_joiner_tf"] = transforms(sample)
+                got.set()
+
+        sub = zenoh.ext.declare_advanced_subscriber(
+            late, tf_key, on_late,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1))
+        got.wait(5.0)
+        sub.undeclare()
+        late.close()
+
+    def on_tf(sample):
+        if sample.attachment is None:
+            counts["without_attachment"] += 1
+            return
+        counts["last_tf"] = transforms(sample)
+        counts["tf_static"] += 1
+        if counts["tf_static"] == 1:
+            threading.Thread(target=late_joiner, daemon=True).start()
+
+    _tf = session.declare_subscriber(tf_key, on_tf)
     pub = session.declare_publisher(key(args.domain, args.joint_states, JOINT_STATE))
     gid = os.urandom(16)
     Header = STORE.types["std_msgs/msg/Header"]

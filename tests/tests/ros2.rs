@@ -294,9 +294,127 @@ fn a_ros2_arm_plays_the_arm_of_a_whole_run() {
         ),
         "{tokens:?}"
     );
+    // /tf_static, decoded by rosbags: the final revision's mirror frames are
+    // the final calibration's; a node started after the first calibration
+    // got the latched transforms too.
+    let calibration: formats::calibration::CalibrationFile =
+        serde_json::from_value(placement["report"]["calibration"].clone()).unwrap();
+    let rig = formats::rig::read(&out.join("mirror0/rig.toml")).unwrap();
+    let last_tf = summary["last_tf"].as_array().expect("a /tf_static message");
+    let frame = |child: &str| {
+        let t = last_tf
+            .iter()
+            .find(|t| t["child"] == child)
+            .unwrap_or_else(|| panic!("no {child} in {last_tf:?}"));
+        assert_eq!(t["parent"], "world");
+        let v = |k: &str| -> Vec<f64> {
+            t[k].as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect()
+        };
+        (v("t"), v("q"))
+    };
+    let mirror_cameras = calibration.mirror_cameras(&rig);
+    for (k, child) in ["mirror_camera_left", "mirror_camera_right"]
+        .iter()
+        .enumerate()
+    {
+        let expected = mirror_cameras[k].world_from_camera();
+        let (t, q) = frame(child);
+        let moved =
+            (nalgebra::Vector3::new(t[0], t[1], t[2]) * 1e3 - expected.translation.vector).norm();
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q[3], q[0], q[1], q[2],
+        ));
+        let turned = q.angle_to(&expected.rotation).to_degrees();
+        assert!(
+            moved < 1e-6 && turned < 1e-6,
+            "{child}: {moved} mm, {turned} deg off the calibration"
+        );
+    }
+    let plane = calibration.plane().expect("a plane");
+    let (t, _) = frame("mirror");
+    let foot = plane.world_from_plane().translation.vector;
+    assert!((nalgebra::Vector3::new(t[0], t[1], t[2]) * 1e3 - foot).norm() < 1e-6);
+    let late = summary["late_joiner_tf"]
+        .as_array()
+        .unwrap_or_else(|| panic!("a late subscriber got no /tf_static: {summary}"));
+    assert_eq!(late.len(), last_tf.len(), "{late:?}");
+
     let settle = &placement["stages"]["kinematics_proc"]["latency"]["goal_to_settled"];
     eprintln!(
         "ros2 arm: plane {angle:.4} deg / {distance:.3} mm; {goals} trajectories; goal to settled {settle}"
     );
     let _ = std::io::stderr().flush();
+}
+
+/// Runs `ros2_proc arm` against `tests/ros2/bad_publisher.py --case CASE`;
+/// returns whether it succeeded and its stderr.
+fn arm_against_bad_publisher(case: &str) -> (bool, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = dir.path().join("rig.toml");
+    formats::rig::write(&rig, &geometry::sim::nico_scene().rig).unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut publisher = KillOnDrop(
+        python("tests/ros2/bad_publisher.py")
+            .args(["--listen", &endpoint, "--case", case])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = BufReader::new(publisher.0.stdout.take().unwrap()).lines();
+    assert!(lines.next().unwrap().unwrap().contains("ready"));
+    let output = Command::new(stage_binaries().join("ros2_proc"))
+        .args(["arm", "--prefix", &unique_prefix(case)])
+        .args(["--rig", rig.to_str().unwrap(), "--endpoint", &endpoint])
+        .args(["--silent-ms", "1000"])
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    drop(publisher.0.stdin.take());
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn a_humble_graph_gets_one_line_saying_so() {
+    let (ok, stderr) = arm_against_bad_publisher("humble");
+    assert!(!ok, "{stderr}");
+    let last = stderr.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("ros2_proc: error: /joint_states comes from a ROS 2 Humble graph")
+            && last.contains("Jazzy or later"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn bad_joint_states_are_named_and_counted_and_silence_stops_the_stage() {
+    let (ok, stderr) = arm_against_bad_publisher("mixed");
+    assert!(!ok, "{stderr}");
+    assert!(
+        stderr.contains("a joint state without joint \"joint4\""),
+        "{stderr}"
+    );
+    let other = format!("RIHS01_{}", "ab".repeat(32));
+    assert!(
+        stderr.contains(&other) && stderr.contains(JointState::info().hash),
+        "both hashes named: {stderr}"
+    );
+    assert!(stderr.contains("no attachment"), "{stderr}");
+    assert!(stderr.contains("malformed CDR"), "{stderr}");
+    // Each kind of bad sample is named once or a bounded number of times,
+    // not once per sample.
+    assert!(stderr.lines().count() < 40, "{stderr}");
+    let last = stderr.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("ros2_proc: error: no /joint_states from tcp/127.0.0.1:")
+            && last.contains("for 1"),
+        "{stderr}"
+    );
 }

@@ -1,0 +1,70 @@
+"""Publishes what a ROS 2 graph may throw at the arm stage, with PyPI
+eclipse-zenoh and rosbags only, then falls silent.
+
+--case humble: joint states on a Humble key (type hash TypeHashNotSupported).
+--case mixed:  for --seconds, each of: a joint state lacking joint4, one
+               with another type hash, one without attachment, a malformed
+               payload; then silence.
+Prints {"ready": true} once it listens; exits when stdin closes.
+"""
+
+import argparse
+import json
+import struct
+import sys
+import time
+
+import numpy as np
+import zenoh
+from rosbags.typesys import Stores, get_typestore
+
+S = get_typestore(Stores.ROS2_JAZZY)
+JS = "sensor_msgs/msg/JointState"
+DDS = "sensor_msgs::msg::dds_::JointState_"
+
+
+def state(names):
+    T = S.types
+    return bytes(S.serialize_cdr(T[JS](
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""),
+        name=names, position=np.zeros(len(names)), velocity=np.array([], dtype=np.float64),
+        effort=np.array([], dtype=np.float64)), JS))
+
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("--listen", required=True)
+    p.add_argument("--case", choices=["humble", "mixed"], required=True)
+    p.add_argument("--seconds", type=float, default=1.5)
+    args = p.parse_args()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([args.listen]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    print(json.dumps({"ready": True}), flush=True)
+    good_key = f"0/joint_states/{DDS}/{S.hash_rihs01(JS)}"
+    seq = 0
+
+    def attachment():
+        nonlocal seq
+        seq += 1
+        return struct.pack("<qqB16s", seq, time.time_ns(), 16, b"\x01" * 16)
+
+    joints = ["joint1", "joint2", "joint3", "joint4"]
+    end = time.monotonic() + args.seconds
+    while time.monotonic() < end:
+        if args.case == "humble":
+            session.put(f"0/joint_states/{DDS}/TypeHashNotSupported", state(joints), attachment=attachment())
+        else:
+            session.put(good_key, state(joints[:3]), attachment=attachment())
+            session.put(f"0/joint_states/{DDS}/RIHS01_{'ab' * 32}", state(joints), attachment=attachment())
+            session.put(good_key, state(joints))
+            session.put(good_key, b"\x00\x01\x00\x00\x07", attachment=attachment())
+        time.sleep(0.02)
+    sys.stdin.read()
+    session.close()
+
+
+if __name__ == "__main__":
+    main()
