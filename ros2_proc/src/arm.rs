@@ -105,6 +105,7 @@ pub fn run(node: &Node, options: &ArmOptions) -> Result<(), ArmError> {
     let goals = bus.subscriber::<topics::PoseGoal>()?;
     let mut rejected = runtime::Rejections::default();
     let mut sent = 0u64;
+    let mut last_sent: Option<(u64, [f64; MAX_JOINTS])> = None;
     let result = bus.wake()?.run(
         &[goals.listener()],
         Some(Duration::from_millis(50)),
@@ -116,8 +117,14 @@ pub fn run(node: &Node, options: &ArmOptions) -> Result<(), ArmError> {
                 match goal.fault(dof) {
                     Some(why) => rejected.reject("pose goal", goal.seq, &why),
                     None if goal.finished() => return Ok(ControlFlow::Break(())),
+                    // The same goal again (kinematics_proc repeats the
+                    // current one) is not sent again: a trajectory
+                    // controller takes each new trajectory as starting now,
+                    // so a repeat would stretch the move.
+                    None if last_sent == Some((goal.pose, goal.q)) => {}
                     None => {
                         trajectories.publish(&trajectory_for(&goal, options))?;
+                        last_sent = Some((goal.pose, goal.q));
                         sent += 1;
                     }
                 }
