@@ -335,6 +335,45 @@ mod tests {
     }
 
     #[test]
+    fn a_ros2_robot_is_the_arm_from_the_table_or_the_command_line() {
+        let config = load(
+            &format!("{GOOD}[ros2]\nendpoint = \"tcp/robot:7447\"\ndomain = 3\n"),
+            Overrides::default(),
+        )
+        .unwrap();
+        let ros2 = config.ros2.unwrap();
+        assert_eq!(ros2.graph().unwrap().domain, 3);
+        assert_eq!(ros2.joint_states, "/joint_states");
+        assert!(ros2.tf);
+        let config = load(
+            GOOD,
+            Overrides {
+                ros2: Some("tcp/10.0.0.2:7447".into()),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(config.ros2.unwrap().endpoint, "tcp/10.0.0.2:7447");
+        let e = load(
+            &format!("{GOOD}arm_driver = \"my_driver\"\n"),
+            Overrides {
+                ros2: Some("tcp/robot:7447".into()),
+                ..Default::default()
+            },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("both arm_driver and ros2"), "{e}");
+        let e = load(
+            &format!("{GOOD}[ros2]\nendpoint = \"tcp/r:7447\"\ntopic = \"/x\"\n"),
+            Overrides::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("unknown field `topic`"), "{e}");
+    }
+
+    #[test]
     fn bad_values_are_named_with_their_key() {
         let e = load(
             &GOOD.replace("joint+kinematics", "best"),

@@ -299,7 +299,7 @@ fn a_ros2_arm_plays_the_arm_of_a_whole_run() {
     // got the latched transforms too.
     let calibration: formats::calibration::CalibrationFile =
         serde_json::from_value(placement["report"]["calibration"].clone()).unwrap();
-    let rig = formats::rig::read(&out.join("mirror0/rig.toml")).unwrap();
+    let rig = formats::rig::read(out.join("mirror0/rig.toml")).unwrap();
     let last_tf = summary["last_tf"].as_array().expect("a /tf_static message");
     let frame = |child: &str| {
         let t = last_tf
