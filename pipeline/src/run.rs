@@ -274,7 +274,15 @@ impl Run {
         };
         let mut supervisor = Supervisor::new(&launch, ends_run);
         for stage in consumers {
+            let records = matches!(stage, StageArgs::Recorder(_));
             supervisor.start(stage)?;
+            // The recorder subscribes before any source starts: a camera
+            // at real-time priority publishes its first frame at once, and
+            // a recorder not yet subscribed missed it. (If it is not ready
+            // in time, the wait below says so.)
+            if records {
+                wait_ready(&supervisor, &bus, READY_WITHIN, &|| self.stopping())?;
+            }
         }
         let ready_within = match side {
             Some(side) => {
