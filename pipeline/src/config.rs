@@ -91,7 +91,8 @@ pub struct Ros2Config {
     /// Zenoh endpoint of the robot's router (`rmw_zenohd`), e.g.
     /// `tcp/robot.local:7447`.
     pub endpoint: String,
-    /// ROS domain id; absent: this environment's `ROS_DOMAIN_ID`, else 0.
+    /// ROS domain id; absent: this environment's `ROS_DOMAIN_ID`, else 0
+    /// (resolved when the config is loaded).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub domain: Option<u32>,
     /// Our node's namespace.
@@ -127,16 +128,16 @@ impl Ros2Config {
     }
 
     /// The graph, as `ros2_proc` takes it.
-    pub fn graph(&self) -> Result<stages::ros2::Graph> {
-        Ok(stages::ros2::Graph {
+    pub fn graph(&self) -> stages::ros2::Graph {
+        stages::ros2::Graph {
             endpoint: self.endpoint.clone(),
-            domain: self.domain()?,
+            domain: self.domain.unwrap_or(0),
             namespace: self.namespace.clone(),
-        })
+        }
     }
 
     /// The domain: the config's, else `ROS_DOMAIN_ID`, else 0.
-    pub fn domain(&self) -> Result<u32> {
+    fn resolve_domain(&self) -> Result<u32> {
         if let Some(d) = self.domain {
             return Ok(d);
         }
@@ -235,8 +236,8 @@ impl Config {
                 path.display()
             );
         }
-        if let Some(r) = &config.ros2 {
-            r.domain()?;
+        if let Some(r) = &mut config.ros2 {
+            r.domain = Some(r.resolve_domain()?);
         }
         config.realtime_priority = realtime_priority.unwrap_or(config.realtime_priority);
         if let Some(command) = &config.arm_driver {
@@ -342,7 +343,7 @@ mod tests {
         )
         .unwrap();
         let ros2 = config.ros2.unwrap();
-        assert_eq!(ros2.graph().unwrap().domain, 3);
+        assert_eq!(ros2.graph().domain, 3);
         assert_eq!(ros2.joint_states, "/joint_states");
         assert!(ros2.tf);
         let config = load(

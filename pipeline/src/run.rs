@@ -184,7 +184,7 @@ impl Run {
                 stages::ros2::TfArgs {
                     prefix: prefix.clone(),
                     rig: rig.clone(),
-                    graph: ros2.graph()?,
+                    graph: ros2.graph(),
                     tf_static: "/tf_static".into(),
                     located: ros2.located_topic.clone(),
                 }
@@ -217,7 +217,7 @@ impl Run {
                 (Some(ros2), _) => stages::ros2::ArmArgs {
                     prefix: prefix.clone(),
                     rig: rig.clone(),
-                    graph: ros2.graph()?,
+                    graph: ros2.graph(),
                     joint_states: ros2.joint_states.clone(),
                     trajectory: ros2.trajectory.clone(),
                     move_ms: config.move_ms,

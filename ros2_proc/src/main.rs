@@ -28,17 +28,22 @@ enum Command {
     Tf(stages::ros2::TfArgs),
 }
 
+/// Joins the graph as node `name`.
+fn join(graph: &stages::ros2::Graph, name: &str) -> Result<Node> {
+    Ok(Node::open(&NodeOptions {
+        endpoint: graph.endpoint.clone(),
+        domain: graph.domain,
+        namespace: graph.namespace.clone(),
+        name: name.into(),
+    })?)
+}
+
 fn arm(args: stages::ros2::ArmArgs) -> Result<()> {
     let rig = formats::rig::read(&args.rig)?;
     let Some(robot_arm) = rig.arm else {
         bail!("{}: the rig has no [arm]", args.rig.display())
     };
-    let node = Node::open(&NodeOptions {
-        endpoint: args.graph.endpoint.clone(),
-        domain: args.graph.domain,
-        namespace: args.graph.namespace.clone(),
-        name: "mirror_arm".into(),
-    })?;
+    let node = join(&args.graph, "mirror_arm")?;
     arm::run(
         &node,
         &ArmOptions {
@@ -59,12 +64,7 @@ fn arm(args: stages::ros2::ArmArgs) -> Result<()> {
 
 fn tf(args: stages::ros2::TfArgs) -> Result<()> {
     let rig = formats::rig::read(&args.rig)?;
-    let node = Node::open(&NodeOptions {
-        endpoint: args.graph.endpoint.clone(),
-        domain: args.graph.domain,
-        namespace: args.graph.namespace.clone(),
-        name: "mirror_calibration".into(),
-    })?;
+    let node = join(&args.graph, "mirror_calibration")?;
     tf::run(
         &node,
         &rig,

@@ -30,32 +30,27 @@ pub fn python_with_mcap_reader() -> PathBuf {
 /// The virtual environment's Python, with the driver SDK installed
 /// (`bash scripts/setup.sh`). Panics if it cannot import `mirror_driver`.
 pub fn python_with_driver_sdk() -> PathBuf {
-    let python = venv_python_path();
-    let ok = Command::new(&python)
-        .args(["-c", "import mirror_driver"])
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(
-        ok,
-        "{} cannot import mirror_driver: run `bash scripts/setup.sh`",
-        python.display()
-    );
-    python
+    venv_python_importing("mirror_driver", "run `bash scripts/setup.sh`")
 }
 
 /// The virtual environment's Python with PyPI `eclipse-zenoh` and
 /// `rosbags` (`scripts/test.sh` installs them): an independent ROS 2 wire.
 /// Panics if it cannot import them.
 pub fn python_with_ros2_wire() -> PathBuf {
+    venv_python_importing(
+        "zenoh, rosbags",
+        "run `bash scripts/test.sh` once (it installs them)",
+    )
+}
+
+/// The virtual environment's Python, if it can `import modules`; else
+/// panics, saying what to run (`fix`).
+fn venv_python_importing(modules: &str, fix: &str) -> PathBuf {
     let python = venv_python_path();
     let ok = Command::new(&python)
-        .args(["-c", "import zenoh, rosbags"])
+        .args(["-c", &format!("import {modules}")])
         .status()
         .is_ok_and(|s| s.success());
-    assert!(
-        ok,
-        "{} cannot import zenoh and rosbags: run `bash scripts/test.sh` once (it installs them)",
-        python.display()
-    );
+    assert!(ok, "{} cannot import {modules}: {fix}", python.display());
     python
 }
