@@ -2,10 +2,13 @@
 //! installed: rmw_zenoh's wire format ([`wire`]: keys, CDR, attachments,
 //! liveliness tokens), the ROS 2 messages we speak ([`msgs`], their hashes
 //! in [`types`]), a node ([`node`]), the wall/monotonic stamp mapping
-//! ([`clock`]), the arm driver ([`arm`]) and the results out ([`tf`]).
+//! ([`clock`]), the arm driver ([`arm`]), the camera ([`camera`], its
+//! images read in place by [`image`]) and the results out ([`tf`]).
 
 pub mod arm;
+pub mod camera;
 pub mod clock;
+pub mod image;
 pub mod msgs;
 pub mod node;
 pub mod tf;

@@ -184,10 +184,7 @@ impl Node {
         qos: Qos,
         capacity: usize,
     ) -> Result<RosSubscriber<M>, Ros2Error> {
-        let topic = self.qualified(topic);
-        let ty = M::info();
-        let token = self.entity_token(EntityKind::Subscription, &topic, &ty, qos);
-        let key = wire::topic_key_any_hash(self.id.domain, &topic, &ty);
+        let (admission, key, token) = self.subscription::<M>(topic, qos);
         let subscriber = self
             .session
             .declare_subscriber(key.clone())
@@ -197,11 +194,60 @@ impl Node {
         Ok(RosSubscriber {
             _token: self.declare_token(&token)?,
             subscriber,
-            topic,
-            hash: ty.hash,
+            admission,
             _type: PhantomData,
         })
     }
+
+    /// A subscription to `M` on `topic` that hands each raw sample to
+    /// `sink` on zenoh's receiving thread, for a caller that decodes it
+    /// itself (an image's pixels are borrowed, not copied) or merges
+    /// several topics into one queue. Check each sample with the
+    /// [`Admission`] returned.
+    pub fn subscribe_raw<M: RosType>(
+        &self,
+        topic: &str,
+        qos: Qos,
+        sink: impl Fn(Sample) + Send + Sync + 'static,
+    ) -> Result<(RawSubscription, Admission), Ros2Error> {
+        let (admission, key, token) = self.subscription::<M>(topic, qos);
+        let subscriber = self
+            .session
+            .declare_subscriber(key.clone())
+            .callback(sink)
+            .wait()
+            .map_err(zenoh_err(format!("subscribe to {key}")))?;
+        Ok((
+            RawSubscription {
+                _token: self.declare_token(&token)?,
+                _subscriber: subscriber,
+            },
+            admission,
+        ))
+    }
+
+    /// The admission check, key (any type hash) and token of a new
+    /// subscription to `M` on `topic`.
+    fn subscription<M: RosType>(&self, topic: &str, qos: Qos) -> (Admission, String, String) {
+        let topic = self.qualified(topic);
+        let ty = M::info();
+        let token = self.entity_token(EntityKind::Subscription, &topic, &ty, qos);
+        let key = wire::topic_key_any_hash(self.id.domain, &topic, &ty);
+        (
+            Admission {
+                topic,
+                hash: ty.hash,
+            },
+            key,
+            token,
+        )
+    }
+}
+
+/// A subscription whose samples go to a callback; it ends when dropped.
+pub struct RawSubscription {
+    _subscriber: Subscriber<()>,
+    _token: LivelinessToken,
 }
 
 /// Publishes `M` on one topic, each sample with its attachment.
@@ -278,11 +324,54 @@ pub struct Received<M> {
     pub attachment: Attachment,
 }
 
+/// Whether a sample on a subscription's topic is a message we read: the
+/// type hash is ours and it carries rmw_zenoh's attachment.
+#[derive(Debug, Clone)]
+pub struct Admission {
+    topic: String,
+    hash: &'static str,
+}
+
+impl Admission {
+    /// The sample's attachment, or why the sample is refused.
+    pub fn check(&self, sample: &Sample) -> Result<Attachment, Refusal> {
+        let theirs = sample.key_expr().as_str().rsplit('/').next().unwrap_or("");
+        if theirs == HUMBLE_HASH {
+            return Err(Refusal::Humble {
+                topic: self.topic.clone(),
+            });
+        }
+        if theirs != self.hash {
+            return Err(Refusal::OtherHash {
+                topic: self.topic.clone(),
+                theirs: theirs.to_string(),
+                ours: self.hash,
+            });
+        }
+        let attachment = sample
+            .attachment()
+            .ok_or_else(|| self.wire(WireError::NoAttachment))?;
+        Attachment::parse(&attachment.to_bytes()).map_err(|e| self.wire(e))
+    }
+
+    /// A malformed sample's refusal.
+    pub fn wire(&self, source: WireError) -> Refusal {
+        Refusal::Wire {
+            topic: self.topic.clone(),
+            source,
+        }
+    }
+
+    /// The fully qualified topic.
+    pub fn topic(&self) -> &str {
+        &self.topic
+    }
+}
+
 /// Receives `M` from one topic.
 pub struct RosSubscriber<M> {
     subscriber: Subscriber<FifoChannelHandler<Sample>>,
-    topic: String,
-    hash: &'static str,
+    admission: Admission,
     _token: LivelinessToken,
     _type: PhantomData<fn() -> M>,
 }
@@ -302,28 +391,9 @@ impl<M: RosType> RosSubscriber<M> {
     }
 
     fn admit(&self, sample: &Sample) -> Result<Received<M>, Refusal> {
-        let topic = || self.topic.clone();
-        let theirs = sample.key_expr().as_str().rsplit('/').next().unwrap_or("");
-        if theirs == HUMBLE_HASH {
-            return Err(Refusal::Humble { topic: topic() });
-        }
-        if theirs != self.hash {
-            return Err(Refusal::OtherHash {
-                topic: topic(),
-                theirs: theirs.to_string(),
-                ours: self.hash,
-            });
-        }
-        let wire = |source| Refusal::Wire {
-            topic: topic(),
-            source,
-        };
-        let attachment = sample
-            .attachment()
-            .ok_or_else(|| wire(WireError::NoAttachment))?;
-        let attachment = Attachment::parse(&attachment.to_bytes()).map_err(wire)?;
+        let attachment = self.admission.check(sample)?;
         let payload = sample.payload().to_bytes();
-        let message = wire::decode::<M>(&payload).map_err(wire)?;
+        let message = wire::decode::<M>(&payload).map_err(|e| self.admission.wire(e))?;
         Ok(Received {
             message,
             attachment,
@@ -332,6 +402,6 @@ impl<M: RosType> RosSubscriber<M> {
 
     /// The fully qualified topic.
     pub fn topic(&self) -> &str {
-        &self.topic
+        self.admission.topic()
     }
 }

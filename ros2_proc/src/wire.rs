@@ -21,6 +21,16 @@ pub enum WireError {
     /// The CDR codec's reason.
     #[error("malformed CDR: {0}")]
     Cdr(#[from] cdr_encoding::Error),
+    /// A sequence that declares more elements than the payload holds.
+    #[error("{what} declares {declared} bytes, the payload has {present}")]
+    Short {
+        /// The field.
+        what: &'static str,
+        /// Bytes it declares.
+        declared: usize,
+        /// Bytes left in the payload.
+        present: usize,
+    },
     /// No attachment: rmw_zenoh drops such a sample, and so do we.
     #[error("no attachment (rmw_zenoh drops such a sample)")]
     NoAttachment,

@@ -275,6 +275,8 @@ stage_table! {
     Ros2Arm(ros2::Ros2Arm),
     /// `ros2_proc tf`: calibrations and located objects out to ROS 2.
     Ros2Tf(ros2::Ros2Tf),
+    /// `ros2_proc camera`: a ROS 2 stereo camera as the camera stage.
+    Ros2Camera(ros2::Ros2Camera),
 }
 
 impl StageArgs {

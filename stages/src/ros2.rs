@@ -172,3 +172,69 @@ impl Stage for Ros2Tf {
         }
     }
 }
+
+/// Be the stereo camera: pair a ROS 2 camera's left and right
+/// `sensor_msgs/Image` topics by stamp and publish each pair as a frame.
+#[derive(Debug, Clone, PartialEq, Serialize, clap::Args)]
+pub struct CameraArgs {
+    /// Service prefix of the pipeline.
+    #[arg(long, default_value = "default")]
+    pub prefix: String,
+    /// The graph.
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub graph: Graph,
+    /// The left camera's image topic.
+    #[arg(long, default_value = "/left/image_raw")]
+    pub left: String,
+    /// The right camera's image topic.
+    #[arg(long, default_value = "/right/image_raw")]
+    pub right: String,
+    /// Two images are a pair when their header stamps differ by at most
+    /// this, ms (hardware-synchronised cameras: 0; free-running ones: up to
+    /// half a frame period).
+    #[arg(long, default_value_t = 5.0)]
+    pub tolerance_ms: f64,
+}
+
+/// A ROS 2 stereo camera as the camera stage.
+pub struct Ros2Camera;
+
+impl FixedPorts for Ros2Camera {
+    const PORTS: Ports<'static> = Ports {
+        subscribes: &[],
+        publishes: &[TopicId::Frames],
+    };
+}
+
+impl Stage for Ros2Camera {
+    type Args = CameraArgs;
+    const BINARY: &'static str = "ros2_proc";
+    const SUBCOMMAND: Option<&'static str> = Some("camera");
+    const HOME: Home = Home::On(Side::Robot);
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(0);
+    /// A live camera runs until the run ends.
+    const RESTART: RestartPolicy = RestartPolicy::Service;
+
+    fn ports(_: &CameraArgs) -> Ports<'_> {
+        Self::PORTS
+    }
+
+    fn prefix(args: &CameraArgs) -> &str {
+        &args.prefix
+    }
+
+    fn example() -> CameraArgs {
+        CameraArgs {
+            prefix: "p".into(),
+            graph: Graph {
+                endpoint: "tcp/10.0.0.2:7447".into(),
+                domain: 4,
+                namespace: "/head".into(),
+            },
+            left: "stereo/left/image_rect".into(),
+            right: "/stereo/right/image_rect".into(),
+            tolerance_ms: 2.5,
+        }
+    }
+}

@@ -46,11 +46,7 @@ struct Bridge(Child);
 
 impl Drop for Bridge {
     fn drop(&mut self) {
-        // SAFETY: kill(2) on our own child's pid.
-        #[allow(unsafe_code)]
-        unsafe {
-            libc::kill(self.0.id() as i32, libc::SIGTERM);
-        }
+        tests::terminate(self.0.id());
         let _ = self.0.wait();
     }
 }

@@ -10,17 +10,13 @@ Prints {"ready": true} once it listens; exits when stdin closes.
 
 import argparse
 import json
-import struct
 import sys
 import time
 
 import numpy as np
-import zenoh
-from rosbags.typesys import Stores, get_typestore
+from rmw import STORE as S, Attachments, key, listening_peer
 
-S = get_typestore(Stores.ROS2_JAZZY)
 JS = "sensor_msgs/msg/JointState"
-DDS = "sensor_msgs::msg::dds_::JointState_"
 
 
 def state(names):
@@ -37,28 +33,19 @@ def main():
     p.add_argument("--case", choices=["humble", "mixed"], required=True)
     p.add_argument("--seconds", type=float, default=1.5)
     args = p.parse_args()
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", json.dumps([args.listen]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(conf)
+    session = listening_peer(args.listen)
     print(json.dumps({"ready": True}), flush=True)
-    good_key = f"0/joint_states/{DDS}/{S.hash_rihs01(JS)}"
-    seq = 0
-
-    def attachment():
-        nonlocal seq
-        seq += 1
-        return struct.pack("<qqB16s", seq, time.time_ns(), 16, b"\x01" * 16)
+    good_key = key(0, "/joint_states", JS)
+    attachment = Attachments(b"\x01" * 16).next
 
     joints = ["joint1", "joint2", "joint3", "joint4"]
     end = time.monotonic() + args.seconds
     while time.monotonic() < end:
         if args.case == "humble":
-            session.put(f"0/joint_states/{DDS}/TypeHashNotSupported", state(joints), attachment=attachment())
+            session.put(key(0, "/joint_states", JS, "TypeHashNotSupported"), state(joints), attachment=attachment())
         else:
             session.put(good_key, state(joints[:3]), attachment=attachment())
-            session.put(f"0/joint_states/{DDS}/RIHS01_{'ab' * 32}", state(joints), attachment=attachment())
+            session.put(key(0, "/joint_states", JS, f"RIHS01_{'ab' * 32}"), state(joints), attachment=attachment())
             session.put(good_key, state(joints))
             session.put(good_key, b"\x00\x01\x00\x00\x07", attachment=attachment())
         time.sleep(0.02)

@@ -15,7 +15,6 @@ closes or on SIGTERM.
 
 import argparse
 import json
-import os
 import random
 import signal
 import struct
@@ -26,21 +25,11 @@ import time
 import numpy as np
 import zenoh
 import zenoh.ext
-from rosbags.typesys import Stores, get_typestore
+from rmw import STORE, Attachments, key, listening_peer
 
-STORE = get_typestore(Stores.ROS2_JAZZY)
 JOINT_STATE = "sensor_msgs/msg/JointState"
 TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
 TF = "tf2_msgs/msg/TFMessage"
-
-
-def dds_name(name):
-    namespace, short = name.rsplit("/", 1)
-    return namespace.replace("/", "::") + "::dds_::" + short + "_"
-
-
-def key(domain, topic, name):
-    return f"{domain}/{topic.strip('/')}/{dds_name(name)}/{STORE.hash_rihs01(name)}"
 
 
 class Arm:
@@ -93,12 +82,7 @@ def main():
               "joint_states": 0, "sequences_ok": True}
     last_seq = {}
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", json.dumps([args.listen]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("timestamping/enabled", "{router: true, peer: true, client: true}")
-    session = zenoh.open(conf)
+    session = listening_peer(args.listen, timestamping=True)
     # The graph as rmw_zenoh sees it: every liveliness token (ros2 node list).
     tokens = set()
 
@@ -178,7 +162,7 @@ def main():
 
     _tf = session.declare_subscriber(tf_key, on_tf)
     pub = session.declare_publisher(key(args.domain, args.joint_states, JOINT_STATE))
-    gid = os.urandom(16)
+    attachments = Attachments()
     Header = STORE.types["std_msgs/msg/Header"]
     Time = STORE.types["builtin_interfaces/msg/Time"]
     JointState = STORE.types[JOINT_STATE]
@@ -189,7 +173,6 @@ def main():
     threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
     print(json.dumps({"ready": True}), flush=True)
     period = 1.0 / args.rate
-    seq = 0
     next_t = time.monotonic()
     while not stop.is_set():
         q = arm.at(time.monotonic())
@@ -205,9 +188,7 @@ def main():
             velocity=np.array([], dtype=np.float64),
             effort=np.array([], dtype=np.float64),
         )
-        seq += 1
-        attachment = struct.pack("<qqB16s", seq, time.time_ns(), 16, gid)
-        pub.put(bytes(STORE.serialize_cdr(msg, JOINT_STATE)), attachment=attachment)
+        pub.put(bytes(STORE.serialize_cdr(msg, JOINT_STATE)), attachment=attachments.next())
         counts["joint_states"] += 1
         next_t += period
         delay = next_t - time.monotonic()

@@ -68,6 +68,16 @@ impl Drop for KillOnDrop {
     }
 }
 
+/// Asks `child` (or the process with that pid) to stop, as systemd or the
+/// launcher does: SIGTERM.
+pub fn terminate(pid: u32) {
+    // SAFETY: kill(2) with a pid and a signal number; no memory is shared.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::kill(pid as i32, libc::SIGTERM);
+    }
+}
+
 /// Waits at most `within` for `child` to exit and returns its exit status.
 /// Panics, naming `what`, if it has not exited by then.
 pub fn wait_exit(child: &mut Child, within: Duration, what: &str) -> ExitStatus {

@@ -54,11 +54,7 @@ fn stop(mut child: KillOnDrop) -> (bool, String) {
     let forked = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children"))
         .ok()
         .and_then(|c| c.split_whitespace().next()?.parse::<i32>().ok());
-    // SAFETY: kill(2) on our own child's (or its child's) pid.
-    #[allow(unsafe_code)]
-    unsafe {
-        libc::kill(forked.unwrap_or(pid as i32), libc::SIGTERM);
-    }
+    tests::terminate(forked.map_or(pid, |f| f as u32));
     let deadline = Instant::now() + Duration::from_secs(10);
     while child.0.try_wait().unwrap().is_none() {
         assert!(
