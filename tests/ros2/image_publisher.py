@@ -15,6 +15,7 @@ once it listens, a JSON summary when done, and exits when stdin closes.
 import argparse
 import json
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -22,7 +23,42 @@ import numpy as np
 from rmw import STORE, Attachments, key, listening_peer
 
 IMAGE = "sensor_msgs/msg/Image"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 T = STORE.types
+
+# What the camera infos say (the test compares the file written with these).
+LEFT_INFO = {"width": 640, "height": 480, "model": "plumb_bob",
+             "d": [-0.21, 0.035, -0.0012, 0.0008, 0.0061],
+             "k": [552.4, 0.0, 317.5, 0.0, 550.9, 243.25, 0.0, 0.0, 1.0]}
+
+
+def camera_info(model, d, k, width, height):
+    f64 = lambda v: np.array(v, dtype=np.float64)  # noqa: E731
+    p = [k[0], k[1], k[2], 0.0, k[3], k[4], k[5], 0.0, 0.0, 0.0, 1.0, 0.0]
+    return bytes(STORE.serialize_cdr(T[CAMERA_INFO](
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=1, nanosec=0),
+                                        frame_id="left_optical"),
+        height=height, width=width, distortion_model=model, d=f64(d), k=f64(k),
+        r=f64([1, 0, 0, 0, 1, 0, 0, 0, 1]), p=f64(p), binning_x=0, binning_y=0,
+        roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
+                                                  do_rectify=False)), CAMERA_INFO))
+
+
+def publish_camera_infos(session):
+    """Until stdin closes: the two camera infos at 20 Hz."""
+    infos = [
+        ("/left/camera_info", camera_info(LEFT_INFO["model"], LEFT_INFO["d"], LEFT_INFO["k"],
+                                          LEFT_INFO["width"], LEFT_INFO["height"])),
+        ("/fisheye/camera_info", camera_info("equidistant", [0.1, 0.01, 0.0, 0.0],
+                                             LEFT_INFO["k"], 640, 480)),
+    ]
+    pubs = [(session.declare_publisher(key(0, topic, CAMERA_INFO)), payload, Attachments())
+            for topic, payload in infos]
+    done = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
+    while not done.wait(0.05):
+        for pub, payload, attachments in pubs:
+            pub.put(payload, attachment=attachments.next())
 
 
 def image(stamp_ns, encoding, grey, channels, frame):
@@ -41,11 +77,17 @@ def image(stamp_ns, encoding, grey, channels, frame):
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("--listen", required=True)
-    p.add_argument("--dir", required=True)
+    p.add_argument("--dir", help="the pairs; without it, camera infos only")
     p.add_argument("--left", default="/left/image_raw")
     p.add_argument("--right", default="/right/image_raw")
     p.add_argument("--period-ms", type=float, default=40.0)
     args = p.parse_args()
+    if args.dir is None:
+        session = listening_peer(args.listen, timestamping=True)
+        print(json.dumps({"ready": True, "left_info": LEFT_INFO}), flush=True)
+        publish_camera_infos(session)
+        session.close()
+        return
     d = Path(args.dir)
     manifest = json.loads((d / "manifest.json").read_text())
     w, h = manifest["width"], manifest["height"]

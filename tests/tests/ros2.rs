@@ -635,3 +635,65 @@ fn a_ros2_camera_feeds_the_tracker() {
         latency["p50_ms"], latency["p99_ms"]
     );
 }
+
+/// `ros2_proc camera-info` writes a camera's `CameraInfo` (published by
+/// Python with rosbags) as the calibration file the rig reads, with the
+/// camera matrix and distortion as published; a lens model the rig cannot
+/// use is refused in one line naming the topic, and no file is written.
+#[test]
+fn a_camera_info_becomes_the_rigs_calibration_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut publisher = KillOnDrop(
+        python("tests/ros2/image_publisher.py")
+            .args(["--listen", &endpoint])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = BufReader::new(publisher.0.stdout.take().unwrap()).lines();
+    let ready: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    let published = &ready["left_info"];
+    let fetch = |topic: &str, out: &Path| {
+        Command::new(stage_binaries().join("ros2_proc"))
+            .args(["camera-info", topic, "--endpoint", &endpoint])
+            .args(["--out", out.to_str().unwrap()])
+            .output()
+            .unwrap()
+    };
+    let left = dir.path().join("left.yaml");
+    let output = fetch("/left/camera_info", &left);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let (k, _) = formats::camera_file::read(&left).unwrap();
+    let numbers = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let m = numbers(&published["k"]);
+    assert_eq!(
+        (k.width, k.height, k.fx, k.skew, k.cx, k.fy, k.cy),
+        (640, 480, m[0], m[1], m[2], m[4], m[5])
+    );
+    assert_eq!(k.dist.coefficients(), numbers(&published["d"]));
+
+    let fisheye = dir.path().join("fisheye.yaml");
+    let output = fetch("/fisheye/camera_info", &fisheye);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{stderr}");
+    let last = stderr.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("ros2_proc: error: /fisheye/camera_info: ")
+            && last.contains("unknown distortion model \"equidistant\""),
+        "{stderr}"
+    );
+    assert!(!fisheye.exists());
+    drop(publisher.0.stdin.take());
+}
