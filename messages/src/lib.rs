@@ -53,3 +53,20 @@ pub fn now_ns() -> i64 {
     unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     ts.tv_sec * 1_000_000_000 + ts.tv_nsec
 }
+
+/// Wall-clock time (`CLOCK_REALTIME`), ns since the epoch.
+pub fn wall_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as i64)
+}
+
+/// How far the wall clock is ahead of [`now_ns`]'s monotonic clock now, ns:
+/// what maps our stamps to wall-clock time (ROS stamps, recordings'
+/// exports) at this moment.
+pub fn wall_minus_monotonic_ns() -> i64 {
+    let before = now_ns();
+    let wall = wall_ns();
+    let after = now_ns();
+    wall - (before + (after - before) / 2)
+}

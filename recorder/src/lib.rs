@@ -7,7 +7,8 @@
 //!   thread ([`writer`]) finishes a chunk at least once a second.
 //! - [`reader::Recording`] reads one back, refusing layouts this build does
 //!   not know and stopping cleanly at damage.
-//! - [`replay::replay`] publishes it onto the bus again.
+//! - [`replay::replay`] publishes it onto the bus again;
+//!   [`ros2_export::export_ros2`] writes it as a ROS 2 bag.
 //! - [`live_view::LiveView`] serves the viewing channels over the Foxglove
 //!   WebSocket protocol while the pipeline runs.
 //!
@@ -24,6 +25,7 @@ pub mod diff;
 pub mod live_view;
 pub mod reader;
 pub mod replay;
+pub mod ros2_export;
 pub mod view;
 pub mod writer;
 

@@ -76,6 +76,11 @@ impl WriterOptions {
             "log_time".into(),
             "message stamp, CLOCK_MONOTONIC ns".into(),
         );
+        // What maps the stamps to wall-clock time (`replay export --ros2`).
+        run.insert(
+            "wall_minus_monotonic_ns".into(),
+            messages::wall_minus_monotonic_ns().to_string(),
+        );
         self.metadata.push(("run".into(), run));
         let layouts = TopicId::ALL
             .iter()

@@ -168,6 +168,29 @@ pub fn trajectory_for(goal: &PoseGoal, options: &ArmOptions) -> JointTrajectory 
     }
 }
 
+/// Our joint positions (rad, mm) as a ROS joint state (rad, m) of `joints`,
+/// stamped `wall_ns`.
+pub fn joint_state_of(
+    q: &[f64],
+    joints: &[String],
+    kinds: &[JointKind],
+    wall_ns: i64,
+) -> JointState {
+    JointState {
+        header: Header {
+            stamp: msgs::Time::from_ns(wall_ns),
+            frame_id: String::new(),
+        },
+        name: joints.to_vec(),
+        position: q
+            .iter()
+            .zip(kinds)
+            .map(|(v, kind)| v * ros_per_ours(*kind))
+            .collect(),
+        ..Default::default()
+    }
+}
+
 /// Our joint positions from a joint state, or the first of our joints it
 /// lacks.
 pub fn positions_of<'a>(state: &JointState, options: &'a ArmOptions) -> Result<Vec<f64>, &'a str> {

@@ -4,22 +4,7 @@
 //! wall-clock step (NTP) moves ROS stamps and not ours, and the offset read
 //! at the crossing follows it.
 
-use std::time::{SystemTime, UNIX_EPOCH};
-
-/// Wall-clock time, ns since the epoch.
-pub fn wall_ns() -> i64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as i64)
-}
-
-/// How far the wall clock is ahead of the monotonic clock now, ns.
-pub fn wall_minus_monotonic() -> i64 {
-    let before = messages::now_ns();
-    let wall = wall_ns();
-    let after = messages::now_ns();
-    wall - (before + (after - before) / 2)
-}
+pub use messages::{wall_minus_monotonic_ns as wall_minus_monotonic, wall_ns};
 
 /// A wall-clock stamp on the monotonic clock.
 pub fn to_monotonic(wall: i64) -> i64 {

@@ -43,18 +43,18 @@ pub struct TfOptions {
     pub located: String,
 }
 
-fn header(stamp_ns: i64) -> Header {
+fn header(wall_ns: i64) -> Header {
     Header {
-        stamp: Time::from_ns(clock::to_wall(stamp_ns)),
+        stamp: Time::from_ns(wall_ns),
         frame_id: WORLD_FRAME.into(),
     }
 }
 
-fn transform(stamp_ns: i64, child: &str, pose: &Isometry3<f64>) -> TransformStamped {
+fn transform(wall_ns: i64, child: &str, pose: &Isometry3<f64>) -> TransformStamped {
     let t = pose.translation.vector * 1e-3;
     let q = pose.rotation;
     TransformStamped {
-        header: header(stamp_ns),
+        header: header(wall_ns),
         child_frame_id: child.into(),
         transform: Transform {
             translation: Vector3 {
@@ -75,27 +75,24 @@ fn transform(stamp_ns: i64, child: &str, pose: &Isometry3<f64>) -> TransformStam
 /// A calibration's frames relative to the world: the mirror plane (if
 /// solved), both mirror cameras and both real cameras. `/tf_static` keeps
 /// one transform per child frame, so each revision sends them all.
-pub fn transforms_of(c: &CalibrationMsg, rig: &Rig) -> TfMessage {
+/// Stamped `wall_ns`: the calibration's stamp on the wall clock.
+pub fn transforms_of(c: &CalibrationMsg, rig: &Rig, wall_ns: i64) -> TfMessage {
     let mut transforms = Vec::new();
     if c.has_plane != 0 {
         let normal = nalgebra::Vector3::new(c.plane[0], c.plane[1], c.plane[2]);
         if let Ok(plane) = geometry::Plane::new(normal, c.plane[3]) {
-            transforms.push(transform(
-                c.stamp_ns,
-                MIRROR_FRAME,
-                &plane.world_from_plane(),
-            ));
+            transforms.push(transform(wall_ns, MIRROR_FRAME, &plane.world_from_plane()));
         }
     }
     for k in 0..2 {
         let mirror_camera = c.cameras[k].to_camera(rig.cameras[k].intrinsics);
         transforms.push(transform(
-            c.stamp_ns,
+            wall_ns,
             MIRROR_CAMERA_FRAMES[k],
             &mirror_camera.world_from_camera(),
         ));
         transforms.push(transform(
-            c.stamp_ns,
+            wall_ns,
             CAMERA_FRAMES[k],
             &rig.cameras[k].world_from_camera(),
         ));
@@ -103,10 +100,11 @@ pub fn transforms_of(c: &CalibrationMsg, rig: &Rig) -> TfMessage {
     TfMessage { transforms }
 }
 
-/// A located object as a point in the world frame, m.
-pub fn point_of(o: &LocatedObject) -> PointStamped {
+/// A located object as a point in the world frame, m, stamped `wall_ns`
+/// (its stamp on the wall clock).
+pub fn point_of(o: &LocatedObject, wall_ns: i64) -> PointStamped {
     PointStamped {
-        header: header(o.stamp_ns),
+        header: header(wall_ns),
         point: Point {
             x: o.position[0] * 1e-3,
             y: o.position[1] * 1e-3,
@@ -129,7 +127,7 @@ pub fn run(node: &Node, rig: &Rig, options: &TfOptions) -> Result<(), TfError> {
         None,
         || -> Result<_, TfError> {
             while let Some(c) = calibrations.receive()? {
-                tf.publish(&transforms_of(&c, rig))?;
+                tf.publish(&transforms_of(&c, rig, clock::to_wall(c.stamp_ns)))?;
                 revisions += 1;
                 tracing::info!(
                     revision = c.revision,
@@ -138,7 +136,7 @@ pub fn run(node: &Node, rig: &Rig, options: &TfOptions) -> Result<(), TfError> {
                 );
             }
             while let Some(o) = located.receive()? {
-                points.publish(&point_of(&o))?;
+                points.publish(&point_of(&o, clock::to_wall(o.stamp_ns)))?;
                 objects += 1;
             }
             Ok(ControlFlow::Continue(()))

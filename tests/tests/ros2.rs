@@ -224,7 +224,7 @@ fn a_ros2_arm_plays_the_arm_of_a_whole_run() {
         .args(["--config", config.to_str().unwrap()])
         .args(["--out", out.to_str().unwrap()])
         .args(["--prefix", &unique_prefix("ros2_arm")])
-        .args(["--no-record", "--report", "json", "--ros2", &endpoint])
+        .args(["--report", "json", "--ros2", &endpoint])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&output.stderr);
@@ -336,6 +336,9 @@ fn a_ros2_arm_plays_the_arm_of_a_whole_run() {
         .as_array()
         .unwrap_or_else(|| panic!("a late subscriber got no /tf_static: {summary}"));
     assert_eq!(late.len(), last_tf.len(), "{late:?}");
+
+    // The run's recording as a ROS 2 bag, read back by rosbags.
+    bag_equals_recording(&out.join("mirror0/recording.mcap"), &dir.path().join("bag"));
 
     let settle = &tests::report::stage_stats(placement, "kinematics_proc").unwrap()["latencies"]["goal_to_settled"]
         ["p50_ms"];
@@ -696,4 +699,138 @@ fn a_camera_info_becomes_the_rigs_calibration_file() {
     );
     assert!(!fisheye.exists());
     drop(publisher.0.stdin.take());
+}
+
+/// `replay export --ros2` writes `recording` as a bag in `bag`; rosbags
+/// reads it (`tests/ros2/read_bag.py`), and its messages are the
+/// recording's: every joint reading by the rig's joint names, every frame's
+/// pixels (CRC-32), the rig's intrinsics, each calibration's frames on
+/// `/tf_static` (offered TRANSIENT_LOCAL), each located object, all on the
+/// wall clock through the offset the recorder noted.
+fn bag_equals_recording(recording: &Path, bag: &Path) {
+    use messages::topics::Message;
+    let output = Command::new(stage_binaries().join("replay"))
+        .args(["export", "--ros2"])
+        .args([bag, recording])
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let out = python("tests/ros2/read_bag.py").arg(bag).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let read: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let topic = |name: &str| &read["topics"][name];
+
+    let file = recorder::reader::Recording::open(recording).unwrap();
+    let offset: i64 = file.extras().unwrap().metadata["run"]["wall_minus_monotonic_ns"]
+        .parse()
+        .unwrap();
+    let rig = formats::rig::read(recording.with_file_name("rig.toml")).unwrap();
+    let arm = rig.arm.as_ref().unwrap();
+    let (mut positions, mut frames, mut calibrations, mut located) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    file.for_each(|_, m| {
+        match m {
+            Message::JointPositions(p) => positions.push(p),
+            Message::Frames(h, pixels) => {
+                let n = h.image_len();
+                frames.push((
+                    h.stamp_ns,
+                    crc32fast::hash(&pixels[..n]),
+                    crc32fast::hash(&pixels[n..2 * n]),
+                ));
+            }
+            Message::Calibration(c) => calibrations.push(c),
+            Message::Located(o) => located.push(o),
+            _ => {}
+        }
+        Ok::<_, recorder::reader::ReadError>(true)
+    })
+    .unwrap();
+    assert!(!positions.is_empty() && !frames.is_empty() && !calibrations.is_empty());
+
+    let states = topic("/joint_states");
+    assert_eq!(states["type"], "sensor_msgs/msg/JointState");
+    assert_eq!(states["hash"], JointState::info().hash);
+    assert_eq!(
+        states["messages"].as_array().unwrap().len(),
+        positions.len()
+    );
+    for (p, m) in positions.iter().zip(states["messages"].as_array().unwrap()) {
+        assert_eq!(m["stamp"].as_i64().unwrap(), p.stamp_ns + offset);
+        assert_eq!(m["name"], serde_json::json!(arm.joint_names()));
+        let q: Vec<f64> = m["position"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert_eq!(
+            q,
+            p.joints(),
+            "the Nico arm's joints are revolute: rad both sides"
+        );
+    }
+    for (k, name) in ["/left/image_raw", "/right/image_raw"].iter().enumerate() {
+        let images = topic(name)["messages"].as_array().unwrap();
+        assert_eq!(images.len(), frames.len(), "{name}");
+        for (f, m) in frames.iter().zip(images) {
+            assert_eq!(m["stamp"].as_i64().unwrap(), f.0 + offset);
+            assert_eq!(m["encoding"], "mono8");
+            assert_eq!(
+                m["crc32"].as_u64().unwrap(),
+                u64::from([f.1, f.2][k]),
+                "{name}"
+            );
+        }
+        let info = &topic(["/left/camera_info", "/right/camera_info"][k])["messages"][0];
+        let i = rig.cameras[k].intrinsics;
+        assert_eq!(
+            info["k"],
+            serde_json::json!([i.fx, i.skew, i.cx, 0.0, i.fy, i.cy, 0.0, 0.0, 1.0])
+        );
+        assert_eq!(info["d"], serde_json::json!(i.dist.coefficients()));
+    }
+    let tf = topic("/tf_static");
+    assert_eq!(tf["durability"], serde_json::json!(["transient_local"]));
+    let revisions = tf["messages"].as_array().unwrap();
+    assert_eq!(revisions.len(), calibrations.len());
+    let last = calibrations.last().unwrap();
+    let mirror_cameras: Vec<_> = (0..2)
+        .map(|k| last.cameras[k].to_camera(rig.cameras[k].intrinsics))
+        .collect();
+    let transforms = revisions.last().unwrap().as_array().unwrap();
+    for (k, child) in ["mirror_camera_left", "mirror_camera_right"]
+        .iter()
+        .enumerate()
+    {
+        let t = transforms.iter().find(|t| t["child"] == *child).unwrap();
+        assert_eq!(t["stamp"].as_i64().unwrap(), last.stamp_ns + offset);
+        let expected = mirror_cameras[k].world_from_camera().translation.vector * 1e-3;
+        let got: Vec<f64> = t["t"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert!((nalgebra::Vector3::new(got[0], got[1], got[2]) - expected).norm() < 1e-12);
+    }
+    let points = topic("/mirror/located")["messages"]
+        .as_array()
+        .map_or(0, Vec::len);
+    assert_eq!(points, located.len());
+    eprintln!(
+        "bag: {} joint states, {} stereo frames, {} calibrations, {} located",
+        positions.len(),
+        frames.len(),
+        calibrations.len(),
+        located.len()
+    );
 }
