@@ -28,6 +28,10 @@ pub enum BridgeError {
     /// in keys (`*`, `$`, `#`, `?`).
     #[error("namespace {0:?} is not a plain zenoh key")]
     Namespace(String),
+    /// The link's security as given cannot work (an endpoint, a
+    /// certificate).
+    #[error(transparent)]
+    Link(#[from] secure_link::LinkError),
     /// Zenoh failed doing `context`.
     #[error("{context}")]
     Zenoh {

@@ -46,7 +46,7 @@ use crate::send::send;
 
 pub use counters::Counters;
 pub use error::BridgeError;
-pub use options::Options;
+pub use options::{Options, Tls};
 
 /// The default of [`Options::lease_ms`]: zenoh's own.
 pub use stages::bridge::DEFAULT_LEASE_MS;

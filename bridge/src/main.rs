@@ -5,8 +5,9 @@ use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Result;
-use bridge::{Counters, Options};
+use bridge::{Counters, Options, Tls};
 use clap::Parser;
+use secure_link::tls::Identity;
 use stages::bridge::{Args, FrameCompression};
 
 fn run(args: Args) -> Result<()> {
@@ -20,6 +21,11 @@ fn run(args: Args) -> Result<()> {
         listen: args.listen,
         connect: args.connect,
         lease_ms: args.lease_ms,
+        tls: args.certs.as_ref().zip(args.side).map(|(dir, side)| Tls {
+            identity: Identity::of_side(dir, side.name()),
+            peer: side.other().name().into(),
+        }),
+        insecure: args.insecure,
         frame_encoding: match args.compress_frames {
             FrameCompression::Zstd => bridge::envelope::Encoding::Zstd,
             FrameCompression::None => bridge::envelope::Encoding::Raw,

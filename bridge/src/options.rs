@@ -2,6 +2,7 @@
 //! work, the zenoh keys, and the zenoh configuration of the session.
 
 use messages::topics::TopicId;
+use secure_link::tls::{self, Allow, Flow, Identity};
 
 use crate::envelope;
 use crate::error::BridgeError;
@@ -28,6 +29,20 @@ pub struct Options {
     /// both sides count what they send as lost, and the connecting side
     /// connects again every 1 to 4 s).
     pub lease_ms: u64,
+    /// Mutual TLS: this side's identity and the common name of the other
+    /// side's certificate (absent: plain TCP).
+    pub tls: Option<Tls>,
+    /// Plain TCP off loopback is allowed (and warned about).
+    pub insecure: bool,
+}
+
+/// Who this side is on a TLS link, and who the other side must be.
+#[derive(Debug, Clone)]
+pub struct Tls {
+    /// This side's CA, certificate and key.
+    pub identity: Identity,
+    /// The other side's certificate's common name (`robot`, `workstation`).
+    pub peer: String,
 }
 
 impl Options {
@@ -49,6 +64,13 @@ impl Options {
         if self.namespace.is_empty() || self.namespace.contains(['*', '$', '#', '?']) {
             return Err(BridgeError::Namespace(self.namespace.clone()));
         }
+        let endpoints = [&self.listen[..], &self.connect[..]].concat();
+        secure_link::endpoint::check(
+            &endpoints,
+            self.tls.is_some(),
+            self.insecure,
+            stages::bridge::EXPOSED_ON_PLAIN_TCP,
+        )?;
         Ok(())
     }
 
@@ -102,7 +124,91 @@ impl Options {
             "transport/link/tx/queue/congestion_control/drop/max_wait_before_drop_fragments",
             FRAME_WAIT_MAX_US.to_string(),
         )?;
+        if let Some(tls) = &self.tls {
+            tls.identity.configure(&mut config)?;
+            tls::restrict_to(&mut config, &tls.peer, &self.allowed())?;
+        }
         Ok(config)
+    }
+
+    /// What the other side may do, from what this one sends and receives
+    /// (as the stage table decided them): send only the topics this side
+    /// receives, subscribe only to those it sends, and ask and answer the
+    /// clock and layout questions about them. The same holds in reverse
+    /// for what this side may do (zenoh's access control filters both ways).
+    pub fn allowed(&self) -> Vec<Allow> {
+        let keys = |topics: &[TopicId], key: &dyn Fn(TopicId) -> String| -> Vec<String> {
+            topics.iter().map(|&t| key(t)).collect()
+        };
+        let topic = |t| self.key(t);
+        let layout = |t| self.layout_key(t, "*");
+        let clock = vec![self.clock_key("*")];
+        let allow = |id, messages, flow, keys| Allow {
+            id,
+            messages,
+            flow,
+            keys,
+        };
+        vec![
+            // The topics, each one way.
+            allow(
+                "put_in",
+                &["put"],
+                Flow::Ingress,
+                keys(&self.receive, &topic),
+            ),
+            allow(
+                "subscribe_out",
+                &["declare_subscriber"],
+                Flow::Egress,
+                keys(&self.receive, &topic),
+            ),
+            allow("put_out", &["put"], Flow::Egress, keys(&self.send, &topic)),
+            allow(
+                "subscribe_in",
+                &["declare_subscriber"],
+                Flow::Ingress,
+                keys(&self.send, &topic),
+            ),
+            // Layouts: a sender asks the receivers of its topics.
+            allow(
+                "layout_answer_out",
+                &["declare_queryable", "reply"],
+                Flow::Egress,
+                keys(&self.receive, &layout),
+            ),
+            allow(
+                "layout_question_in",
+                &["query"],
+                Flow::Ingress,
+                keys(&self.receive, &layout),
+            ),
+            allow(
+                "layout_answer_in",
+                &["declare_queryable", "reply"],
+                Flow::Ingress,
+                keys(&self.send, &layout),
+            ),
+            allow(
+                "layout_question_out",
+                &["query"],
+                Flow::Egress,
+                keys(&self.send, &layout),
+            ),
+            // Clocks: each side answers round trips and a receiver asks.
+            allow(
+                "clock_out",
+                &["declare_queryable", "reply", "query"],
+                Flow::Egress,
+                clock.clone(),
+            ),
+            allow(
+                "clock_in",
+                &["declare_queryable", "reply", "query"],
+                Flow::Ingress,
+                clock,
+            ),
+        ]
     }
 }
 

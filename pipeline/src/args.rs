@@ -9,8 +9,11 @@ use crate::split::{self, Side};
 
 /// Run the live pipeline on the simulated robot.
 #[derive(Debug, Parser)]
-#[command(version, about)]
+#[command(version, about, args_conflicts_with_subcommands = true)]
 pub struct Args {
+    /// Another task than running the pipeline.
+    #[command(subcommand)]
+    pub command: Option<Task>,
     /// Config file (TOML); see pipeline.toml.
     #[arg(long, default_value = "pipeline.toml")]
     pub config: PathBuf,
@@ -57,6 +60,11 @@ pub struct Args {
     /// them: not with --no-record).
     #[arg(long)]
     pub live_view: Option<u16>,
+    /// With --live-view: the address to serve it on instead of 127.0.0.1,
+    /// e.g. 0.0.0.0 for every interface. Anyone who reaches it sees the
+    /// run: the Foxglove protocol has no authentication.
+    #[arg(long, value_name = "ADDR", requires = "live_view")]
+    pub live_view_bind: Option<std::net::IpAddr>,
     /// What to print at the end: the tables, or the whole report as JSON.
     #[arg(long, value_enum, default_value_t = ReportFormat::Table)]
     pub report: ReportFormat,
@@ -92,6 +100,23 @@ pub struct Args {
     /// a second robot on the same network another.
     #[arg(long, default_value = split::DEFAULT_NAMESPACE, requires = "side")]
     pub namespace: String,
+    /// With --side: the run's certificates (`pipeline certs` makes them; on
+    /// each side its own and the CA's): the link is mutual TLS on `tls/`
+    /// endpoints, and each side may only send its own topics (overrides the
+    /// config's `split.certs`).
+    #[arg(long, value_name = "DIR", requires = "side")]
+    pub certs: Option<PathBuf>,
+    /// With --side: allow a plain `tcp/` endpoint to or from another host.
+    /// Anyone on that network can then read the run and send forged data.
+    #[arg(long, requires = "side")]
+    pub insecure: bool,
+}
+
+/// What `pipeline` can do besides running.
+#[derive(Debug, clap::Subcommand)]
+pub enum Task {
+    /// Make the certificates of a run split across two hosts.
+    Certs(crate::certs::CertsArgs),
 }
 
 /// What `--replay` publishes.

@@ -1,6 +1,6 @@
 //! The run's settings: `pipeline.toml`, with the command line's overrides.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use mirror_proc::calibrate::Method;
@@ -111,6 +111,16 @@ pub struct Ros2Config {
     /// Topic of the located objects (`geometry_msgs/PointStamped`).
     #[serde(default = "default_located")]
     pub located_topic: String,
+    /// For a `tls/` endpoint: the CA the router's certificate is signed by
+    /// (relative to the config file, as the other two).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tls_ca: Option<PathBuf>,
+    /// For a router that requires client certificates: ours.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tls_cert: Option<PathBuf>,
+    /// The key of `tls_cert`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tls_key: Option<PathBuf>,
 }
 
 impl Ros2Config {
@@ -124,6 +134,9 @@ impl Ros2Config {
             trajectory: default_trajectory(),
             tf: true,
             located_topic: default_located(),
+            tls_ca: None,
+            tls_cert: None,
+            tls_key: None,
         }
     }
 
@@ -133,6 +146,9 @@ impl Ros2Config {
             endpoint: self.endpoint.clone(),
             domain: self.domain.unwrap_or(0),
             namespace: self.namespace.clone(),
+            tls_ca: self.tls_ca.clone(),
+            tls_cert: self.tls_cert.clone(),
+            tls_key: self.tls_key.clone(),
         }
     }
 
@@ -238,6 +254,15 @@ impl Config {
         }
         if let Some(r) = &mut config.ros2 {
             r.domain = Some(r.resolve_domain()?);
+            if r.tls_cert.is_some() != r.tls_key.is_some() {
+                bail!(
+                    "{}: keys ros2.tls_cert and ros2.tls_key: give both or neither",
+                    path.display()
+                );
+            }
+            if r.tls_cert.is_some() && r.tls_ca.is_none() {
+                bail!("{}: key ros2.tls_cert needs ros2.tls_ca", path.display());
+            }
         }
         config.realtime_priority = realtime_priority.unwrap_or(config.realtime_priority);
         if let Some(command) = &config.arm_driver {
@@ -271,6 +296,19 @@ impl Config {
                 "{}: key split.lease_ms: {ms} is not within 100 ms to 10 min",
                 path.display()
             );
+        }
+        // Files named in the config are relative to it.
+        let beside_config = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = path.parent().unwrap_or(Path::new("")).join(&*p);
+            }
+        };
+        config.split.certs.iter_mut().for_each(beside_config);
+        if let Some(r) = &mut config.ros2 {
+            [&mut r.tls_ca, &mut r.tls_cert, &mut r.tls_key]
+                .into_iter()
+                .flatten()
+                .for_each(beside_config);
         }
         if !(config.arm_rate_hz > 0.0 && config.arm_rate_hz <= 1000.0) {
             bail!(

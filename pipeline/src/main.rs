@@ -14,6 +14,7 @@
 //! across two hosts, with a `bridge` to the other ([`split`]).
 
 mod args;
+mod certs;
 mod config;
 mod replay;
 mod report;
@@ -35,6 +36,9 @@ use crate::run::Run;
 use crate::split::{Link, Side};
 
 fn run(args: Args) -> Result<()> {
+    if let Some(args::Task::Certs(certs)) = &args.command {
+        return certs::run(certs);
+    }
     if args.no_record && args.live_view.is_some() {
         bail!("--live-view is served by the recorder: it cannot be used with --no-record");
     }
@@ -92,6 +96,17 @@ fn run(args: Args) -> Result<()> {
         Some(_) => None,
         None => scheduling::realtime(config.realtime_priority),
     };
+    let link = args.side.map(|side| Link {
+        side,
+        listen: args.listen,
+        connect: args.connect,
+        namespace: args.namespace,
+        certs: args.certs.or(config.split.certs.clone()),
+        insecure: args.insecure,
+    });
+    if let Some(link) = &link {
+        link.check()?;
+    }
     let run = Run {
         config,
         realtime,
@@ -103,13 +118,9 @@ fn run(args: Args) -> Result<()> {
             .unwrap_or_else(|| format!("run{}", std::process::id())),
         record: !args.no_record,
         live_view: args.live_view,
+        live_view_bind: args.live_view_bind,
         trace: args.trace,
-        link: args.side.map(|side| Link {
-            side,
-            listen: args.listen,
-            connect: args.connect,
-            namespace: args.namespace,
-        }),
+        link,
         stop,
     };
     let results = match &replay {

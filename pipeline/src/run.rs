@@ -49,6 +49,8 @@ pub struct Run {
     pub record: bool,
     /// Serve the live view on this port.
     pub live_view: Option<u16>,
+    /// ... on this address instead of 127.0.0.1.
+    pub live_view_bind: Option<std::net::IpAddr>,
     /// Trace every stage step.
     pub trace: bool,
     /// This host's side of a split run and its link; `None`: every stage
@@ -174,6 +176,7 @@ impl Run {
                         ("fps".into(), config.fps.to_string()),
                     ],
                     live_view: self.live_view,
+                    live_view_bind: self.live_view_bind,
                     ..Default::default()
                 }
                 .into(),
@@ -365,6 +368,9 @@ impl Run {
             connect: link.connect.clone(),
             compress_frames: split.compress_frames,
             lease_ms: split.lease_ms.unwrap_or(stages::bridge::DEFAULT_LEASE_MS),
+            certs: link.certs.clone(),
+            side: link.certs.as_ref().map(|_| link.side),
+            insecure: link.insecure,
         });
         let (arm, consumers): (Vec<StageArgs>, Vec<StageArgs>) = here
             .into_iter()
@@ -429,6 +435,7 @@ impl Run {
                         ("replay_kind".into(), kind.name().into()),
                     ],
                     live_view: self.live_view,
+                    live_view_bind: self.live_view_bind,
                     ..Default::default()
                 }
                 .into(),

@@ -5,6 +5,8 @@
 //! starts its own part of it and a `bridge`. What crosses follows from the
 //! table (see [`crossing`]), so the two sides agree on it without a word.
 
+use std::path::PathBuf;
+
 use messages::topics::TopicId;
 use serde::{Deserialize, Serialize};
 pub use stages::Side;
@@ -27,6 +29,10 @@ pub struct SplitConfig {
     /// (absent: the bridge's default).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lease_ms: Option<u64>,
+    /// The run's certificates (`pipeline certs`), relative to the config
+    /// file; each side reads its own from the directory it has.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub certs: Option<PathBuf>,
 }
 
 /// This host's side of a split run and where its link goes (the command
@@ -42,6 +48,30 @@ pub struct Link {
     /// First part of the bridge's keys (each placement appends `/m<i>`);
     /// both sides give the same, a second robot another.
     pub namespace: String,
+    /// The run's certificates: the link is mutual TLS.
+    pub certs: Option<PathBuf>,
+    /// Plain TCP across hosts is allowed.
+    pub insecure: bool,
+}
+
+impl Link {
+    /// Refuses, before anything starts, a link that the bridge would refuse:
+    /// a `tls/` endpoint without certificates, certificates without one,
+    /// plain TCP to or from another host without `--insecure`, or this
+    /// side's certificate files missing or open to others.
+    pub fn check(&self) -> Result<(), secure_link::LinkError> {
+        let endpoints = [&self.listen[..], &self.connect[..]].concat();
+        secure_link::endpoint::check(
+            &endpoints,
+            self.certs.is_some(),
+            self.insecure,
+            stages::bridge::EXPOSED_ON_PLAIN_TCP,
+        )?;
+        match &self.certs {
+            Some(dir) => secure_link::tls::Identity::of_side(dir, self.side.name()).check(),
+            None => Ok(()),
+        }
+    }
 }
 
 /// The namespace of a split run unless `--namespace` says.
@@ -106,6 +136,36 @@ mod tests {
 
     fn names(topics: &[TopicId]) -> Vec<&'static str> {
         topics.iter().map(|t| t.name()).collect()
+    }
+
+    #[test]
+    fn a_link_across_hosts_needs_the_runs_certificates_or_insecure() {
+        let link = |endpoint: &str, certs: Option<PathBuf>, insecure: bool| Link {
+            side: Side::Robot,
+            listen: vec![endpoint.into()],
+            connect: Vec::new(),
+            namespace: DEFAULT_NAMESPACE.into(),
+            certs,
+            insecure,
+        };
+        let err = link("tcp/0.0.0.0:7447", None, false).check().unwrap_err();
+        assert!(err.to_string().contains("--insecure"), "{err}");
+        link("tcp/0.0.0.0:7447", None, true).check().unwrap();
+        link("tcp/127.0.0.1:7447", None, false).check().unwrap();
+        // This side's files are checked before anything starts.
+        let dir = tempfile::tempdir().unwrap();
+        let err = link("tls/0.0.0.0:7447", Some(dir.path().into()), false)
+            .check()
+            .unwrap_err();
+        assert!(err.to_string().contains("ca.pem"), "{err}");
+        let sides = ["robot", "workstation"].map(|name| secure_link::certs::SideRequest {
+            name: name.into(),
+            hosts: vec!["localhost".into()],
+        });
+        secure_link::certs::write(dir.path(), &sides, 1, false).unwrap();
+        link("tls/0.0.0.0:7447", Some(dir.path().into()), false)
+            .check()
+            .unwrap();
     }
 
     #[test]

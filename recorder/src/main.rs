@@ -1,6 +1,7 @@
 //! `recorder`: records every topic of a running pipeline into one MCAP file
 //! until Ctrl-C or SIGTERM; see the crate docs and the README.
 
+use std::net::{IpAddr, Ipv4Addr};
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -36,7 +37,9 @@ fn run(args: Args) -> Result<()> {
     let options = RecordOptions {
         writer,
         rig,
-        live_view: args.live_view.map(|p| ("127.0.0.1".to_string(), p)),
+        live_view: args
+            .live_view
+            .map(|port| (live_view_address(args.live_view_bind), port)),
         drop_frames: !args.no_drop,
         realtime_priority: args.realtime_priority,
     };
@@ -53,6 +56,21 @@ fn run(args: Args) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     }
     Ok(())
+}
+
+/// Where the live view listens: localhost unless `bind` says, which is
+/// then a warning (the Foxglove protocol has no authentication).
+fn live_view_address(bind: Option<IpAddr>) -> String {
+    match bind {
+        Some(address) if !address.is_loopback() => {
+            tracing::warn!(
+                "the live view listens on {address}: anyone who reaches it sees the run's images,                  poses and calibration (the Foxglove protocol has no authentication)"
+            );
+            address.to_string()
+        }
+        Some(address) => address.to_string(),
+        None => Ipv4Addr::LOCALHOST.to_string(),
+    }
 }
 
 fn main() -> ExitCode {

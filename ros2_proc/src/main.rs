@@ -63,6 +63,8 @@ fn join(graph: &stages::ros2::Graph, name: &str) -> Result<Node> {
         domain: graph.domain,
         namespace: graph.namespace.clone(),
         name: name.into(),
+        tls_ca: graph.tls_ca.clone(),
+        tls_identity: graph.tls_cert.clone().zip(graph.tls_key.clone()),
     })?)
 }
 

@@ -3,6 +3,7 @@
 //! keys, CDR and attachments (see [`crate::wire`]).
 
 use std::marker::PhantomData;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
 use std::time::Duration;
 
@@ -31,6 +32,12 @@ pub enum Ros2Error {
     /// A message could not be encoded.
     #[error("{0}")]
     Wire(#[from] WireError),
+    /// TLS to the router as given cannot work.
+    #[error("{0}")]
+    Tls(String),
+    /// A certificate file or an endpoint is unusable.
+    #[error(transparent)]
+    Link(#[from] secure_link::LinkError),
 }
 
 fn zenoh_err(what: impl Into<String>) -> impl FnOnce(zenoh::Error) -> Ros2Error {
@@ -49,6 +56,37 @@ pub struct NodeOptions {
     pub namespace: String,
     /// The node's name.
     pub name: String,
+    /// For a `tls/` endpoint: the CA the router's certificate is signed by.
+    pub tls_ca: Option<PathBuf>,
+    /// Our certificate and key, for a router that requires one.
+    pub tls_identity: Option<(PathBuf, PathBuf)>,
+}
+
+impl NodeOptions {
+    /// TLS to the router as given: a `tls/` endpoint needs the CA; a
+    /// certificate of ours is shown when asked for (mutual TLS).
+    fn configure_tls(&self, config: &mut zenoh::Config) -> Result<(), Ros2Error> {
+        let tls = secure_link::endpoint::exposure(&self.endpoint)?
+            == secure_link::endpoint::Exposure::Tls;
+        match (&self.tls_ca, &self.tls_identity) {
+            (None, _) if tls => Err(Ros2Error::Tls(format!(
+                "{} is tls/: give the CA of the router's certificate (--tls-ca)",
+                self.endpoint
+            ))),
+            (Some(_), _) if !tls => Err(Ros2Error::Tls(format!(
+                "--tls-ca was given but {} is not tls/",
+                self.endpoint
+            ))),
+            (None, _) => Ok(()),
+            (Some(ca), None) => Ok(secure_link::tls::trust(config, ca)?),
+            (Some(ca), Some((cert, key))) => Ok(secure_link::tls::Identity {
+                ca: ca.clone(),
+                cert: cert.clone(),
+                key: key.clone(),
+            }
+            .configure(config)?),
+        }
+    }
 }
 
 /// A node on the graph.
@@ -79,6 +117,7 @@ impl Node {
             "timestamping/enabled",
             "{ router: true, peer: true, client: true }".into(),
         )?;
+        options.configure_tls(&mut config)?;
         let session = zenoh::open(config).wait().map_err(zenoh_err(format!(
             "cannot reach the ROS 2 graph at {} (is rmw_zenohd running there?)",
             options.endpoint

@@ -1,6 +1,7 @@
 //! `bridge`: this side's topics to the other host of a split run, and the
 //! other side's here, over zenoh.
 
+use std::path::PathBuf;
 use std::time::Duration;
 
 use messages::topics::TopicId;
@@ -12,6 +13,11 @@ use crate::{Home, RestartPolicy, Side, Stage};
 /// How long the link may stay silent before it counts as cut, unless
 /// `--lease-ms` says, ms.
 pub const DEFAULT_LEASE_MS: u64 = 10_000;
+
+/// What plain TCP exposes to a network, as the warning for `--insecure`
+/// and the refusal without it name it.
+pub const EXPOSED_ON_PLAIN_TCP: &str =
+    "every message that crosses (camera frames, joint states, calibrations)";
 
 /// How frames cross the link.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
@@ -58,6 +64,18 @@ pub struct Args {
     /// the connecting side connects again by itself.
     #[arg(long, default_value_t = DEFAULT_LEASE_MS)]
     pub lease_ms: u64,
+    /// The run's certificates (`pipeline certs --out DIR` makes them): the
+    /// link is mutual TLS (`tls/` endpoints) as `--side`, and the other
+    /// side may only send what this one receives and take what it sends.
+    #[arg(long, value_name = "DIR", requires = "side")]
+    pub certs: Option<PathBuf>,
+    /// With --certs: which side's certificate this bridge holds.
+    #[arg(long, value_enum, requires = "certs")]
+    pub side: Option<Side>,
+    /// Allow plain `tcp/` endpoints off loopback: anyone on the network
+    /// can then read what crosses and send forged messages.
+    #[arg(long)]
+    pub insecure: bool,
 }
 
 /// The bridge's declaration.
@@ -90,10 +108,13 @@ impl Stage for Bridge {
             namespace: Some("mirror/split/m0".into()),
             send: vec![TopicId::Frames, TopicId::JointState],
             receive: vec![TopicId::Calibration],
-            listen: vec!["tcp/0.0.0.0:7447".into()],
+            listen: vec!["tls/0.0.0.0:7447".into()],
             connect: Vec::new(),
             compress_frames: FrameCompression::Zstd,
             lease_ms: 3000,
+            certs: Some("certs".into()),
+            side: Some(Side::Robot),
+            insecure: false,
         }
     }
 }

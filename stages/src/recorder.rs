@@ -68,6 +68,11 @@ pub struct Args {
     /// Also serve the viewing channels live to Foxglove over WebSocket on this port of localhost.
     #[arg(long)]
     pub live_view: Option<u16>,
+    /// With --live-view: serve on this address instead of 127.0.0.1 (logged
+    /// as a warning: the Foxglove protocol has no authentication, so anyone
+    /// who reaches it sees the run).
+    #[arg(long, value_name = "ADDR", requires = "live_view")]
+    pub live_view_bind: Option<std::net::IpAddr>,
     /// SCHED_FIFO priority (1-99) of the thread that takes messages out of
     /// shared memory, when the stages publishing them run at real-time
     /// priority (the launcher passes its base priority); compression and
@@ -94,6 +99,7 @@ impl Default for Args {
             no_view_images: false,
             flush_ms: 1000,
             live_view: None,
+            live_view_bind: None,
             realtime_priority: None,
             json: false,
         }
@@ -147,6 +153,7 @@ impl Stage for Recorder {
             attach: vec!["plan.csv".into(), "pipeline.toml".into()],
             meta: vec![("mirror".into(), "0".into()), ("run".into(), "a=b".into())],
             live_view: Some(8765),
+            live_view_bind: Some(std::net::Ipv4Addr::UNSPECIFIED.into()),
             realtime_priority: Some(10),
             ..Default::default()
         }

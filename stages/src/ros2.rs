@@ -27,6 +27,17 @@ pub struct Graph {
     /// Namespace of our node (relative topic names are under it).
     #[arg(long, default_value = "/")]
     pub namespace: String,
+    /// For a `tls/` endpoint: the CA certificate (PEM) the router's
+    /// certificate must be signed by.
+    #[arg(long, value_name = "FILE")]
+    pub tls_ca: Option<PathBuf>,
+    /// For a router that requires client certificates (mutual TLS): ours
+    /// (PEM), signed by a CA the router trusts.
+    #[arg(long, value_name = "FILE", requires_all = ["tls_ca", "tls_key"])]
+    pub tls_cert: Option<PathBuf>,
+    /// The private key of `--tls-cert` (PEM, readable by its owner only).
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
 }
 
 impl Default for Graph {
@@ -35,6 +46,9 @@ impl Default for Graph {
             endpoint: "tcp/localhost:7447".into(),
             domain: 0,
             namespace: "/".into(),
+            tls_ca: None,
+            tls_cert: None,
+            tls_key: None,
         }
     }
 }
@@ -97,9 +111,12 @@ impl Stage for Ros2Arm {
             prefix: "p".into(),
             rig: "r.toml".into(),
             graph: Graph {
-                endpoint: "tcp/10.0.0.2:7447".into(),
+                endpoint: "tls/10.0.0.2:7447".into(),
                 domain: 7,
                 namespace: "/robot1".into(),
+                tls_ca: Some("certs/ca.pem".into()),
+                tls_cert: Some("certs/client.pem".into()),
+                tls_key: Some("certs/client.key".into()),
             },
             joint_states: "joint_states".into(),
             trajectory: "/arm_controller/joint_trajectory".into(),
@@ -163,9 +180,12 @@ impl Stage for Ros2Tf {
             prefix: "p".into(),
             rig: "r.toml".into(),
             graph: Graph {
-                endpoint: "tcp/10.0.0.2:7447".into(),
+                endpoint: "tls/10.0.0.2:7447".into(),
                 domain: 3,
                 namespace: "/".into(),
+                tls_ca: Some("ca.pem".into()),
+                tls_cert: None,
+                tls_key: None,
             },
             tf_static: "/tf_static".into(),
             located: "/robot1/located".into(),
@@ -231,6 +251,7 @@ impl Stage for Ros2Camera {
                 endpoint: "tcp/10.0.0.2:7447".into(),
                 domain: 4,
                 namespace: "/head".into(),
+                ..Graph::default()
             },
             left: "stereo/left/image_rect".into(),
             right: "/stereo/right/image_rect".into(),

@@ -10,6 +10,10 @@
 //!
 //! - Bridge hop, compressed: the same with the bridges compressing frames
 //!   (`--compress-frames zstd`).
+//! - Bridge hop over TLS: the plain bridge hop on a mutual TLS link
+//!   (`tls/`, the run's certificates, zenoh's access control on), as a
+//!   split run between hosts has it by default; its ratios against the
+//!   TCP hop are what the link's security costs.
 //!
 //! The pixels are a real photograph's (grey), so that compression sees
 //! real texture. Latency is the taking time less the frame's publication time (the bridge
@@ -209,16 +213,24 @@ fn main() {
     // pair of bridges between two prefixes of its own.
     let prefix = tests::unique_prefix;
     let local = prefix("hop_local");
-    let pair = |name: &str, extra: &[&str]| {
+    let certs = tempfile::tempdir().unwrap();
+    let sides = ["robot", "workstation"].map(|name| secure_link::certs::SideRequest {
+        name: name.into(),
+        hosts: vec!["127.0.0.1".into()],
+    });
+    secure_link::certs::write(certs.path(), &sides, 1, false).unwrap();
+    let certs = certs.path().to_str().unwrap();
+    let pair = |name: &str, protocol: &str, extra: [&[&str]; 2]| {
         let (a, b) = (prefix(&format!("{name}_a")), prefix(&format!("{name}_b")));
         let port = tests::free_port();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let endpoint = format!("{protocol}/127.0.0.1:{port}");
         let ns = format!("mirror/{a}");
-        let common = [&["--namespace", &ns][..], extra].concat();
+        let common = ["--namespace", &ns];
         let sending = bridge(
             &bins,
             &[
                 &common[..],
+                extra[0],
                 &["--prefix", &a, "--send", "frames", "--listen", &endpoint],
             ]
             .concat(),
@@ -227,6 +239,7 @@ fn main() {
             &bins,
             &[
                 &common[..],
+                extra[1],
                 &[
                     "--prefix",
                     &b,
@@ -240,30 +253,43 @@ fn main() {
         );
         (a, b, [sending, receiving])
     };
-    let (a, b, _raw) = pair("hop", &[]);
-    let (za, zb, _zstd) = pair("hopz", &["--compress-frames", "zstd"]);
+    let (a, b, _raw) = pair("hop", "tcp", [&[], &[]]);
+    let zstd = ["--compress-frames", "zstd"];
+    let (za, zb, _zstd) = pair("hopz", "tcp", [&zstd, &zstd]);
+    let (ta, tb, _tls) = pair(
+        "hopt",
+        "tls",
+        [
+            &["--certs", certs, "--side", "robot"],
+            &["--certs", certs, "--side", "workstation"],
+        ],
+    );
     println!(
-        "{:>9} | {:>17} | {:>17} | {:>17} | {:>9} | {:>26} | {:>5}",
+        "{:>9} | {:>17} | {:>17} | {:>17} | {:>17} | {:>9} | {:>35} | {:>5} | {:>17}",
         "payload",
         "local p50/p99 us",
         "bridge p50/p99",
         "zstd p50/p99",
+        "tls p50/p99",
         "p50 ratio",
-        "frames/s local/bridge/zstd",
-        "zstd%"
+        "frames/s local/bridge/zstd/tls",
+        "zstd%",
+        "tls/tcp p50 fps"
     );
     let mut rows = Vec::new();
     for size in SIZES {
         let local = measure(&local, &local, size, n, flood);
         let hop = measure(&a, &b, size, n, flood);
         let zhop = measure(&za, &zb, size, n, flood);
+        let thop = measure(&ta, &tb, size, n, flood);
         let p = |m: &Measured| {
             (
                 percentile(&m.latencies_us, 0.5),
                 percentile(&m.latencies_us, 0.99),
             )
         };
-        let ((l50, l99), (b50, b99), (z50, z99)) = (p(&local), p(&hop), p(&zhop));
+        let ((l50, l99), (b50, b99), (z50, z99), (t50, t99)) =
+            (p(&local), p(&hop), p(&zhop), p(&thop));
         let pixels = photo_pixels(size.0);
         let zstd_share = 100.0
             * zstd::bulk::compress(&pixels, bridge::envelope::ZSTD_LEVEL)
@@ -271,7 +297,7 @@ fn main() {
                 .len() as f64
             / size.0 as f64;
         println!(
-            "{:>9} | {:>8.0} {:>8.0} | {:>8.0} {:>8.0} | {:>8.0} {:>8.0} | {:>9.1} | {:>8.0} {:>8.0} {:>8.0} | {:>5.1}",
+            "{:>9} | {:>8.0} {:>8.0} | {:>8.0} {:>8.0} | {:>8.0} {:>8.0} | {:>8.0} {:>8.0} | {:>9.1} | {:>8.0} {:>8.0} {:>8.0} {:>8.0} | {:>5.1} | {:>8.2} {:>8.2}",
             size.0,
             l50,
             l99,
@@ -279,14 +305,21 @@ fn main() {
             b99,
             z50,
             z99,
+            t50,
+            t99,
             b50 / l50,
             local.throughput_per_s,
             hop.throughput_per_s,
             zhop.throughput_per_s,
-            zstd_share
+            thop.throughput_per_s,
+            zstd_share,
+            t50 / b50,
+            thop.throughput_per_s / hop.throughput_per_s
         );
         assert!(
-            !hop.latencies_us.is_empty() && !zhop.latencies_us.is_empty(),
+            !hop.latencies_us.is_empty()
+                && !zhop.latencies_us.is_empty()
+                && !thop.latencies_us.is_empty(),
             "no frame of {} B crossed a bridge",
             size.0
         );
@@ -302,6 +335,11 @@ fn main() {
                        "frames_per_s": zhop.throughput_per_s,
                        "mb_per_s": zhop.throughput_per_s * size.0 as f64 / 1e6,
                        "compressed_percent": zstd_share},
+            "bridge_tls": {"p50_us": t50, "p99_us": t99, "count": thop.latencies_us.len(),
+                       "frames_per_s": thop.throughput_per_s,
+                       "mb_per_s": thop.throughput_per_s * size.0 as f64 / 1e6,
+                       "p50_ratio_to_tcp": t50 / b50,
+                       "throughput_ratio_to_tcp": thop.throughput_per_s / hop.throughput_per_s},
         }));
     }
     if full {

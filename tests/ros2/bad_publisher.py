@@ -5,6 +5,8 @@ eclipse-zenoh and rosbags only, then falls silent.
 --case mixed:  for --seconds, each of: a joint state lacking joint4, one
                with another type hash, one without attachment, a malformed
                payload; then silence.
+--tls-dir DIR: listen on TLS requiring client certificates, as a router
+               configured for it.
 Prints {"ready": true} once it listens; exits when stdin closes.
 """
 
@@ -32,8 +34,9 @@ def main():
     p.add_argument("--listen", required=True)
     p.add_argument("--case", choices=["humble", "mixed"], required=True)
     p.add_argument("--seconds", type=float, default=1.5)
+    p.add_argument("--tls-dir", help="listen as a TLS router (rmw.listening_peer)")
     args = p.parse_args()
-    session = listening_peer(args.listen)
+    session = listening_peer(args.listen, tls_dir=args.tls_dir)
     print(json.dumps({"ready": True}), flush=True)
     good_key = key(0, "/joint_states", JS)
     attachment = Attachments(b"\x01" * 16).next

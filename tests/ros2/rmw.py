@@ -25,12 +25,21 @@ def key(domain, topic, name, type_hash=None):
     return f"{domain}/{topic.strip('/')}/{dds_name(name)}/{type_hash or STORE.hash_rihs01(name)}"
 
 
-def listening_peer(endpoint, timestamping=False):
-    """A zenoh peer listening on `endpoint`, multicast scouting off."""
+def listening_peer(endpoint, timestamping=False, tls_dir=None):
+    """A zenoh peer listening on `endpoint`, multicast scouting off. With
+    `tls_dir`: TLS as a router configured for it, with `router.pem`/`.key`,
+    requiring client certificates signed by `ca.pem` (mutual TLS)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    if tls_dir:
+        conf.insert_json5("transport/link/tls", json.dumps({
+            "root_ca_certificate": os.path.join(tls_dir, "ca.pem"),
+            "listen_certificate": os.path.join(tls_dir, "router.pem"),
+            "listen_private_key": os.path.join(tls_dir, "router.key"),
+            "enable_mtls": True,
+        }))
     if timestamping:
         conf.insert_json5("timestamping/enabled", "{router: true, peer: true, client: true}")
     return zenoh.open(conf)

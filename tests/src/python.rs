@@ -43,6 +43,12 @@ pub fn python_with_ros2_wire() -> PathBuf {
     )
 }
 
+/// The virtual environment's Python with PyPI `eclipse-zenoh`
+/// (`scripts/test.sh` installs it): a zenoh peer that is none of ours.
+pub fn python_with_zenoh() -> PathBuf {
+    venv_python_importing("zenoh", "run `bash scripts/test.sh` once (it installs it)")
+}
+
 /// The virtual environment's Python, if it can `import modules`; else
 /// panics, saying what to run (`fix`).
 fn venv_python_importing(modules: &str, fix: &str) -> PathBuf {

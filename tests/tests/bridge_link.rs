@@ -371,9 +371,25 @@ fn a_cut_link_comes_back_by_itself_and_both_sides_count_the_loss() {
     let hosts = TwoHosts::new();
     let (robot, workstation) = (unique_prefix("cut_robot"), unique_prefix("cut_ws"));
     let namespace = format!("mirror/{robot}");
-    let listen = format!("tcp/{}:7447", hosts.addresses[0]);
+    // Over mutual TLS, as between hosts by default: the link comes back
+    // through a new handshake.
+    let listen = format!("tls/{}:7447", hosts.addresses[0]);
+    let certs = tempfile::tempdir().unwrap();
+    let sides = ["robot", "workstation"].map(|name| secure_link::certs::SideRequest {
+        name: name.into(),
+        hosts: vec![hosts.addresses[0].clone()],
+    });
+    secure_link::certs::write(certs.path(), &sides, 1, false).unwrap();
+    let certs = certs.path().to_str().unwrap();
     // A short lease, so that a cut of 3 s is a cut and not a stall.
-    let common = ["--namespace", &namespace, "--lease-ms", "1000"];
+    let common = [
+        "--namespace",
+        &namespace,
+        "--lease-ms",
+        "1000",
+        "--certs",
+        certs,
+    ];
     let sending = bridge_on(
         &hosts,
         0,
@@ -386,6 +402,8 @@ fn a_cut_link_comes_back_by_itself_and_both_sides_count_the_loss() {
                 "joint_state",
                 "--listen",
                 &listen,
+                "--side",
+                "robot",
             ],
         ]
         .concat(),
@@ -402,6 +420,8 @@ fn a_cut_link_comes_back_by_itself_and_both_sides_count_the_loss() {
                 "joint_state",
                 "--connect",
                 &listen,
+                "--side",
+                "workstation",
             ],
         ]
         .concat(),

@@ -352,13 +352,26 @@ fn a_ros2_arm_plays_the_arm_of_a_whole_run() {
 /// Runs `ros2_proc arm` against `tests/ros2/bad_publisher.py --case CASE`;
 /// returns whether it succeeded and its stderr.
 fn arm_against_bad_publisher(case: &str) -> (bool, String) {
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    arm_against_publisher(case, &endpoint, &[], &[])
+}
+
+/// `ros2_proc arm` (with `arm_args`) against `bad_publisher.py --case
+/// case` listening at `endpoint` (with `publisher_args`): whether the stage
+/// succeeded, and its log.
+fn arm_against_publisher(
+    case: &str,
+    endpoint: &str,
+    publisher_args: &[&str],
+    arm_args: &[&str],
+) -> (bool, String) {
     let dir = tempfile::tempdir().unwrap();
     let rig = dir.path().join("rig.toml");
     formats::rig::write(&rig, &geometry::sim::nico_scene().rig).unwrap();
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let mut publisher = KillOnDrop(
         python("tests/ros2/bad_publisher.py")
-            .args(["--listen", &endpoint, "--case", case])
+            .args(["--listen", endpoint, "--case", case])
+            .args(publisher_args)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .spawn()
@@ -368,8 +381,9 @@ fn arm_against_bad_publisher(case: &str) -> (bool, String) {
     assert!(lines.next().unwrap().unwrap().contains("ready"));
     let output = Command::new(stage_binaries().join("ros2_proc"))
         .args(["arm", "--prefix", &unique_prefix(case)])
-        .args(["--rig", rig.to_str().unwrap(), "--endpoint", &endpoint])
+        .args(["--rig", rig.to_str().unwrap(), "--endpoint", endpoint])
         .args(["--silent-ms", "1000"])
+        .args(arm_args)
         .env("RUST_LOG", "warn")
         .output()
         .unwrap();
@@ -378,6 +392,44 @@ fn arm_against_bad_publisher(case: &str) -> (bool, String) {
         output.status.success(),
         String::from_utf8_lossy(&output.stderr).into_owned(),
     )
+}
+
+/// A router on mutual TLS (a PyPI zenoh peer configured as one) is reached
+/// with the CA and a client certificate, and its joint states arrive; without
+/// the client certificate the stage cannot open a session and says where.
+#[test]
+fn the_arm_stage_reaches_a_router_on_mutual_tls() {
+    let certs = tempfile::tempdir().unwrap();
+    let sides = ["router", "client"].map(|name| secure_link::certs::SideRequest {
+        name: name.into(),
+        hosts: vec!["127.0.0.1".into()],
+    });
+    secure_link::certs::write(certs.path(), &sides, 1, false).unwrap();
+    let file = |name: &str| certs.path().join(name).to_str().unwrap().to_string();
+    let tls_dir = ["--tls-dir", certs.path().to_str().unwrap()];
+    let endpoint = format!("tls/127.0.0.1:{}", free_port());
+    let (ca, cert, key) = (file("ca.pem"), file("client.pem"), file("client.key"));
+    let (ok, stderr) = arm_against_publisher(
+        "mixed",
+        &endpoint,
+        &tls_dir,
+        &["--tls-ca", &ca, "--tls-cert", &cert, "--tls-key", &key],
+    );
+    // Stopped by the silence after the publisher's samples, which arrived.
+    assert!(!ok, "{stderr}");
+    assert!(
+        stderr.contains("a joint state without joint \"joint4\""),
+        "nothing crossed the TLS link: {stderr}"
+    );
+    let endpoint = format!("tls/127.0.0.1:{}", free_port());
+    let (ok, stderr) = arm_against_publisher("mixed", &endpoint, &tls_dir, &["--tls-ca", &ca]);
+    assert!(!ok, "{stderr}");
+    let last = stderr.lines().last().unwrap_or_default();
+    assert!(
+        last.contains("cannot reach the ROS 2 graph at tls/127.0.0.1:"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("joint4"), "{stderr}");
 }
 
 #[test]

@@ -3,7 +3,8 @@
 //! iceoryx2 root of its own, the robot's clock a day ahead of the
 //! workstation's. From one config, `pipeline --side robot` runs the camera,
 //! tracker, arm driver and kinematics, `pipeline --side workstation` the
-//! mirror stage and the recorder, each with a bridge. The split run
+//! mirror stage and the recorder, each with a bridge, the link mutual TLS
+//! with the run's certificates (`pipeline certs`). The split run
 //! calibrates as the same run on one host does, nothing of either side is
 //! in this host's shared memory, and the recording made on the workstation
 //! replays bit for bit.
@@ -122,7 +123,20 @@ fn split_run(config: &str, name: &str, one_host: bool) -> SplitRun {
     }
 
     let hosts = TwoHosts::new();
-    let endpoint = format!("tcp/{}:7447", hosts.addresses[0]);
+    // Mutual TLS with the run's own certificates, as a split run has it
+    // by default (`pipeline certs`).
+    let endpoint = format!("tls/{}:7447", hosts.addresses[0]);
+    let certs = out("certs");
+    let made = Command::new(&pipeline)
+        .args(["certs", "--out", certs.to_str().unwrap()])
+        .args(["--robot-host", &hosts.addresses[0]])
+        .output()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
     let robot_prefix = unique_prefix(&format!("{name}_r"));
     let ws_prefix = unique_prefix(&format!("{name}_w"));
     let side = |k: usize, ahead_s: i64, side: &str, link: &str, prefix: &str| {
@@ -130,6 +144,7 @@ fn split_run(config: &str, name: &str, one_host: bool) -> SplitRun {
         let child = hosts
             .machine(k, ahead_s, &pipeline)
             .args(["--side", side, link, &endpoint, "--config", config])
+            .args(["--certs", certs.to_str().unwrap()])
             .args(["--out", out(side).to_str().unwrap(), "--prefix", prefix])
             .args(["--report", "json"])
             .stdout(Stdio::null())
