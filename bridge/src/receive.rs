@@ -88,8 +88,15 @@ fn admit<'a>(
         });
     }
     // The first message heard from a sender sets where its count starts.
-    if *seen > 0 {
+    if *seen > 0 && from.seq > *seen + 1 {
         Counters::add(&counters.lost[topic.index()], from.seq - *seen - 1);
+        tracing::debug!(
+            topic = topic.name(),
+            sender = from.sender,
+            after = *seen,
+            next = from.seq,
+            "a gap in what the sender numbered"
+        );
     }
     *seen = from.seq;
     let mut message = opened.message;

@@ -237,6 +237,11 @@ fn put(
         };
         let publisher = publisher(out.topic);
         if !heard(publisher) {
+            tracing::debug!(
+                topic = out.topic.name(),
+                seq = out.seq,
+                "put with no receiver on the link"
+            );
             Counters::add(&counters.unheard[out.topic.index()], 1);
         }
         let from = envelope::From {

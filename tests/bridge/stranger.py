@@ -45,11 +45,13 @@ def main():
     p.add_argument("--times", type=int, default=20)
     p.add_argument("--seconds", type=float, default=3.0)
     args = p.parse_args()
+    started = time.monotonic()
     report = {"opened": False, "error": "", "received": {}, "bytes": 0, "put": 0}
     try:
         session = zenoh.open(config(args))
     except Exception as e:  # zenoh raises its own ZError
         report["error"] = str(e).splitlines()[0] if str(e) else type(e).__name__
+        report["seconds"] = round(time.monotonic() - started, 2)
         print(json.dumps(report), flush=True)
         return
     report["opened"] = True
@@ -62,7 +64,11 @@ def main():
             report["bytes"] += len(sample.payload.to_bytes())
         return on_sample
 
-    subscribers = [session.declare_subscriber(key, counter(key)) for key in args.read]
+    # Only what comes over the link counts, not its own puts.
+    subscribers = [
+        session.declare_subscriber(key, counter(key), allowed_origin=zenoh.Locality.REMOTE)
+        for key in args.read
+    ]
     time.sleep(0.5)
     forged = []
     for spec in args.forge:
@@ -71,13 +77,14 @@ def main():
             forged.append((key, f.read()))
     for _ in range(args.times):
         for key, payload in forged:
-            session.put(key, payload)
+            session.put(key, payload, allowed_destination=zenoh.Locality.REMOTE)
             report["put"] += 1
         time.sleep(0.02)
     time.sleep(args.seconds)
     for s in subscribers:
         s.undeclare()
     session.close()
+    report["seconds"] = round(time.monotonic() - started, 2)
     print(json.dumps(report), flush=True)
 
 

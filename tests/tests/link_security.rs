@@ -145,8 +145,14 @@ fn stranger(
             .arg("--forge")
             .arg(format!("{key}={}", file.display()));
     }
+    let started = Instant::now();
     let out = command.output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
+    eprintln!(
+        "stranger at {endpoint} {credentials:?}: {:.1} s: {}",
+        started.elapsed().as_secs_f64(),
+        stdout.trim()
+    );
     serde_json::from_str(stdout.lines().last().unwrap_or_default()).unwrap_or_else(|e| {
         panic!(
             "stranger: {e}:\n{stdout}\n{}",
