@@ -365,6 +365,9 @@ fn arm_against_publisher(
     publisher_args: &[&str],
     arm_args: &[&str],
 ) -> (bool, String) {
+    // Built (or checked) before the publisher starts: it publishes for
+    // 1.5 s only, and a first `cargo build` can take longer.
+    let ros2_proc = stage_binaries().join("ros2_proc");
     let dir = tempfile::tempdir().unwrap();
     let rig = dir.path().join("rig.toml");
     formats::rig::write(&rig, &geometry::sim::nico_scene().rig).unwrap();
@@ -379,7 +382,7 @@ fn arm_against_publisher(
     );
     let mut lines = BufReader::new(publisher.0.stdout.take().unwrap()).lines();
     assert!(lines.next().unwrap().unwrap().contains("ready"));
-    let output = Command::new(stage_binaries().join("ros2_proc"))
+    let output = Command::new(ros2_proc)
         .args(["arm", "--prefix", &unique_prefix(case)])
         .args(["--rig", rig.to_str().unwrap(), "--endpoint", endpoint])
         .args(["--silent-ms", "1000"])
