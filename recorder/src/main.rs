@@ -64,7 +64,8 @@ fn live_view_address(bind: Option<IpAddr>) -> String {
     match bind {
         Some(address) if !address.is_loopback() => {
             tracing::warn!(
-                "the live view listens on {address}: anyone who reaches it sees the run's images,                  poses and calibration (the Foxglove protocol has no authentication)"
+                "the live view listens on {address}: anyone who reaches it sees the run's images, \
+                 poses and calibration (the Foxglove protocol has no authentication)"
             );
             address.to_string()
         }
@@ -75,4 +76,19 @@ fn live_view_address(bind: Option<IpAddr>) -> String {
 
 fn main() -> ExitCode {
     runtime::stage_main("recorder", || run(Args::parse()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_live_view_stays_on_localhost_unless_told() {
+        assert_eq!(live_view_address(None), "127.0.0.1");
+        assert_eq!(live_view_address(Some("::1".parse().unwrap())), "::1");
+        assert_eq!(
+            live_view_address(Some("0.0.0.0".parse().unwrap())),
+            "0.0.0.0"
+        );
+    }
 }
