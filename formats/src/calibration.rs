@@ -16,9 +16,23 @@
 //!   "joint_offsets": [0.0, 0.0, 0.0, 0.0],
 //!   "joint_names": ["joint1", "joint2", "joint3", "joint4"],
 //!   "train_rms_px": 0.6,
-//!   "samples": 20
+//!   "samples": 20,
+//!   "uncertainty": {
+//!     "residual_px": 0.5,
+//!     "plane_angle_deg": 0.004,
+//!     "plane_distance_mm": 0.03,
+//!     "joint_offsets_deg": [0.002, 0.003, 0.004, 0.005],
+//!     "mirror_camera_centers_mm": [0.06, 0.06],
+//!     "mirror_camera_angles_deg": [0.004, 0.004]
+//!   }
 //! }
 //! ```
+//!
+//! `uncertainty` holds 1-sigma values from the fit's covariance (see
+//! `docs/methods.md`): for a vector quantity (a normal, a centre) the RMS of
+//! its error, `sqrt(E[|error|^2])`. A parameter the samples do not
+//! determine has `null` and is named in `undetermined`. Files written
+//! before it existed have none.
 
 use std::fmt;
 use std::path::Path;
@@ -52,6 +66,29 @@ pub struct CameraPose {
     pub center: [f64; 3],
 }
 
+/// A calibration's 1-sigma uncertainty (see the module's documentation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct UncertaintyEntry {
+    /// The fit's residual standard deviation per pixel coordinate, px.
+    pub residual_px: f64,
+    /// RMS angle between the true and the estimated mirror normal, deg.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane_angle_deg: Option<f64>,
+    /// The plane offset `d`, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane_distance_mm: Option<f64>,
+    /// Each encoder offset, deg (`null`: not determined).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_offsets_deg: Option<Vec<Option<f64>>>,
+    /// RMS error of each mirror camera's centre, mm, left then right.
+    pub mirror_camera_centers_mm: [f64; 2],
+    /// RMS rotation error of each mirror camera, deg, left then right.
+    pub mirror_camera_angles_deg: [f64; 2],
+    /// What the samples do not determine.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub undetermined: Vec<String>,
+}
+
 /// A calibration as stored on disk.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationFile {
@@ -73,6 +110,9 @@ pub struct CalibrationFile {
     pub train_rms_px: f64,
     /// Number of training samples used.
     pub samples: usize,
+    /// What the solved values are known to.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<UncertaintyEntry>,
 }
 
 impl CalibrationFile {
@@ -105,7 +145,14 @@ impl CalibrationFile {
             joint_names: None,
             train_rms_px,
             samples,
+            uncertainty: None,
         }
+    }
+
+    /// With its uncertainty.
+    pub fn with_uncertainty(mut self, uncertainty: UncertaintyEntry) -> Self {
+        self.uncertainty = Some(uncertainty);
+        self
     }
 
     /// With the names of the rig's arm joints, if it has an arm.

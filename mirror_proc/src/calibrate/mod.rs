@@ -11,8 +11,10 @@
 
 mod joint;
 mod paper;
+pub mod uncertainty;
 
 pub use paper::initial_estimate as paper_initial_estimate;
+pub use uncertainty::Uncertainty;
 
 use geometry::{Camera, GeometryError, Plane, Rig, Sample, View, triangulate::triangulate};
 use nalgebra::{Vector2, Vector3};
@@ -35,6 +37,12 @@ pub const MIN_GRAZING_DEG: f64 = 5.0;
 /// paper's tracker (2.6 px) leaves under 4 px; half the samples paired with
 /// the wrong pose leave about 50 px.
 pub const MAX_TRAIN_RMS_PX: f64 = 25.0;
+
+/// Pixel noise (per coordinate, px) assumed where a fit has no redundancy
+/// to measure it from (as many residuals as parameters): our tracker's
+/// centre errors on renders, median 0.109 px and 95th percentile 0.40 px
+/// (docs/methods.md), rounded up.
+pub const PRIOR_PIXEL_SIGMA: f64 = 0.2;
 
 pub use formats::calibration::Method;
 
@@ -109,6 +117,8 @@ pub struct Calibration {
     pub train_rms_px: f64,
     /// Mirror samples used.
     pub samples: usize,
+    /// What the solved values are known to.
+    pub uncertainty: Uncertainty,
 }
 
 impl Calibration {
@@ -124,6 +134,7 @@ impl Calibration {
             self.samples,
         )
         .with_joint_names(rig)
+        .with_uncertainty(self.uncertainty.to_file())
     }
 }
 

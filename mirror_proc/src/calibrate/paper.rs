@@ -3,6 +3,7 @@
 use geometry::{Camera, GeometryError, Rig, Sample, lsq};
 use nalgebra::{DVector, Rotation3, Vector3};
 
+use super::uncertainty::{CameraCovariance, Uncertainty, perturb_camera};
 use super::{CalibrateError, Calibration, Method, Observation, midplane, prepare, rms_px};
 
 /// The paper's initial mirror cameras (Eqs 6-12) for both cameras.
@@ -52,12 +53,28 @@ fn initial_camera(camera: &Camera, obs: &[Observation]) -> Result<Camera, Geomet
     ))
 }
 
+/// The residuals of camera `k`: the model points projected through `cam`
+/// minus the detections.
+fn residuals(cam: &Camera, obs: &[Observation], k: usize) -> Option<DVector<f64>> {
+    let mut r = DVector::zeros(2 * obs.len());
+    for (i, o) in obs.iter().enumerate() {
+        let d = cam.project(&o.model_point).ok()? - o.pixels[k];
+        r[2 * i] = d.x;
+        r[2 * i + 1] = d.y;
+    }
+    Some(r)
+}
+
+/// A refined mirror camera, its residuals and its covariance in the
+/// uncertainty chart (rotation vector, centre shift).
+struct Refined {
+    camera: Camera,
+    residuals: DVector<f64>,
+    covariance: lsq::Covariance,
+}
+
 /// Eq 13: 6-DOF refinement of one mirror camera on its reprojection error.
-fn refine(
-    start: &Camera,
-    obs: &[Observation],
-    k: usize,
-) -> Result<(Camera, DVector<f64>), GeometryError> {
+fn refine(start: &Camera, obs: &[Observation], k: usize) -> Result<Refined, GeometryError> {
     let camera_at = |x: &DVector<f64>| {
         let turn = Rotation3::new(Vector3::new(x[0], x[1], x[2]));
         Camera::new(
@@ -65,16 +82,6 @@ fn refine(
             turn.matrix() * start.camera_from_world,
             Vector3::new(x[3], x[4], x[5]),
         )
-    };
-    let residuals = |x: &DVector<f64>| {
-        let cam = camera_at(x);
-        let mut r = DVector::zeros(2 * obs.len());
-        for (i, o) in obs.iter().enumerate() {
-            let d = cam.project(&o.model_point).ok()? - o.pixels[k];
-            r[2 * i] = d.x;
-            r[2 * i + 1] = d.y;
-        }
-        Some(r)
     };
     let x0 = DVector::from_vec(vec![
         0.0,
@@ -84,9 +91,18 @@ fn refine(
         start.center.y,
         start.center.z,
     ]);
-    let (x, _) = lsq::minimize(x0, residuals)?;
-    let r = residuals(&x).ok_or(GeometryError::NonFinite("paper refinement residuals"))?;
-    Ok((camera_at(&x), r))
+    let (x, _) = lsq::minimize(x0, |x| residuals(&camera_at(x), obs, k))?;
+    let camera = camera_at(&x);
+    let undefined = || GeometryError::NonFinite("paper refinement residuals");
+    let r = residuals(&camera, obs, k).ok_or_else(undefined)?;
+    // The covariance in a chart centred on the solution.
+    let at = |d: &DVector<f64>| residuals(&perturb_camera(&camera, d.as_slice()), obs, k);
+    let jac = lsq::jacobian(&DVector::zeros(6), at).ok_or_else(undefined)?;
+    Ok(Refined {
+        camera,
+        covariance: lsq::covariance(&jac, &r, super::PRIOR_PIXEL_SIGMA.powi(2))?,
+        residuals: r,
+    })
 }
 
 pub(super) fn calibrate(rig: &Rig, obs: &[Observation]) -> Result<Calibration, CalibrateError> {
@@ -94,19 +110,39 @@ pub(super) fn calibrate(rig: &Rig, obs: &[Observation]) -> Result<Calibration, C
         initial_camera(&rig.cameras[0], obs)?,
         initial_camera(&rig.cameras[1], obs)?,
     ];
-    let (left, r_left) = refine(&initial[0], obs, 0)?;
-    let (right, r_right) = refine(&initial[1], obs, 1)?;
+    let left = refine(&initial[0], obs, 0)?;
+    let right = refine(&initial[1], obs, 1)?;
     let all = DVector::from_iterator(
-        r_left.len() + r_right.len(),
-        r_left.iter().chain(r_right.iter()).copied(),
+        left.residuals.len() + right.residuals.len(),
+        left.residuals.iter().chain(right.residuals.iter()).copied(),
     );
+    // The two fits are independent: a block-diagonal covariance, and the
+    // pooled residual variance for the summary.
+    let mut cameras = CameraCovariance::zeros();
+    for (k, fit) in [&left, &right].into_iter().enumerate() {
+        for i in 0..6 {
+            for j in 0..6 {
+                cameras[(6 * k + i, 6 * k + j)] = fit.covariance.matrix[(i, j)];
+            }
+        }
+    }
+    let variance = 0.5 * (left.covariance.residual_variance + right.covariance.residual_variance);
+    let mut uncertainty = Uncertainty::from_cameras(cameras, variance);
+    for (fit, name) in [&left, &right].into_iter().zip(&rig.names) {
+        if !fit.covariance.undetermined.is_empty() {
+            uncertainty
+                .undetermined
+                .push(format!("the {name} mirror camera's pose"));
+        }
+    }
     Ok(Calibration {
         method: Method::Paper,
         plane: None,
-        mirror_cameras: [left, right],
+        mirror_cameras: [left.camera, right.camera],
         joint_offsets: None,
         initial_cameras: initial,
         train_rms_px: rms_px(&all),
         samples: obs.len(),
+        uncertainty,
     })
 }
