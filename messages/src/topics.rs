@@ -170,6 +170,43 @@ impl TopicId {
     }
 }
 
+/// Layouts of earlier versions that recordings made with them still read
+/// with: topic, type name, size. The later version only appended fields
+/// to each, so a recorded message is read by zero-filling the rest, and
+/// zero means "not stated" in every appended field.
+const LEGACY_LAYOUTS: &[(TopicId, &str, usize)] = &[
+    (TopicId::Calibration, "mirror.Calibration.v1", 328),
+    (TopicId::Located, "mirror.LocatedObject.v1", 48),
+];
+
+impl TopicId {
+    /// How this build reads messages recorded with layout `found`: `Ok(None)`
+    /// as they are (the current layout), `Ok(Some(size))` for an earlier
+    /// layout of `size` bytes (see [`Message::decode_legacy`]); otherwise
+    /// why not.
+    pub fn recorded_as(self, found: &Layout) -> Result<Option<usize>, String> {
+        let expected = self.layout();
+        if found.type_name == expected.type_name && found.size == expected.size {
+            return Ok(None);
+        }
+        LEGACY_LAYOUTS
+            .iter()
+            .find(|(topic, name, size)| {
+                *topic == self && *name == found.type_name && *size == found.size
+            })
+            .map(|(_, _, size)| Some(*size))
+            .ok_or_else(|| {
+                format!(
+                    "was recorded as {} ({} bytes); this build reads {} ({} bytes)",
+                    found.type_name.escape_debug(),
+                    found.size,
+                    expected.type_name,
+                    expected.size
+                )
+            })
+    }
+}
+
 /// Why the bytes of a message do not decode ([`Message::decode`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum DecodeError {
@@ -197,6 +234,19 @@ fn read<T: Pod>(bytes: &[u8]) -> Result<T, DecodeError> {
         });
     }
     Ok(bytemuck::pod_read_unaligned(bytes))
+}
+
+/// A `T` whose first `bytes.len()` bytes are `bytes` and the rest zero.
+fn read_prefix<T: Pod>(bytes: &[u8]) -> Result<T, DecodeError> {
+    if bytes.len() > size_of::<T>() {
+        return Err(DecodeError::Size {
+            len: bytes.len(),
+            expected: size_of::<T>(),
+        });
+    }
+    let mut value = T::zeroed();
+    bytemuck::bytes_of_mut(&mut value)[..bytes.len()].copy_from_slice(bytes);
+    Ok(value)
 }
 
 /// Declares the topics: marker types, [`TopicId`] and [`Message`].
@@ -294,6 +344,26 @@ macro_rules! topic_table {
                 })
             }
 
+            /// Decodes a small message recorded with an earlier layout of
+            /// `recorded_size` bytes (from [`TopicId::recorded_as`]): the
+            /// fields the current layout appended read as zero.
+            pub fn decode_legacy(
+                topic: TopicId,
+                bytes: &[u8],
+                recorded_size: usize,
+            ) -> Result<Message<'static>, DecodeError> {
+                if bytes.len() != recorded_size {
+                    return Err(DecodeError::Size {
+                        len: bytes.len(),
+                        expected: recorded_size,
+                    });
+                }
+                Ok(match topic {
+                    TopicId::$frames => return Err(DecodeError::NoHeader(bytes.len())),
+                    $(TopicId::$id => Message::$id(read_prefix(bytes)?),)*
+                })
+            }
+
             /// The bytes it was decoded from: the inverse of [`Message::decode`].
             pub fn to_bytes(&self) -> Vec<u8> {
                 match self {
@@ -363,6 +433,66 @@ topic_table! {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_earlier_layout_is_the_current_ones_prefix_and_reads_zero_filled() {
+        assert_eq!(
+            std::mem::offset_of!(crate::CalibrationMsg, uncertainty),
+            328
+        );
+        assert_eq!(
+            std::mem::offset_of!(crate::LocatedObject, covariance_mm2),
+            48
+        );
+        let v1 = |topic: TopicId| Layout {
+            type_name: topic.layout().type_name.replace(".v2", ".v1"),
+            size: LEGACY_LAYOUTS.iter().find(|l| l.0 == topic).unwrap().2,
+            ..topic.layout()
+        };
+        let located = crate::LocatedObject {
+            stamp_ns: 5,
+            revision: 2,
+            id: 9,
+            reserved: 0,
+            position: [1.0, 2.0, 3.0],
+            covariance_mm2: [4.0; 6],
+        };
+        let recorded = TopicId::Located.recorded_as(&v1(TopicId::Located)).unwrap();
+        assert_eq!(recorded, Some(48));
+        let bytes = &bytemuck::bytes_of(&located)[..48];
+        let read = Message::decode_legacy(TopicId::Located, bytes, 48).unwrap();
+        assert_eq!(
+            read,
+            Message::Located(crate::LocatedObject {
+                covariance_mm2: [0.0; 6],
+                ..located
+            })
+        );
+        assert!(Message::decode_legacy(TopicId::Located, &bytes[..40], 48).is_err());
+        assert_eq!(
+            TopicId::Calibration.recorded_as(&TopicId::Calibration.layout()),
+            Ok(None)
+        );
+        let calibration_v1 = v1(TopicId::Calibration);
+        assert_eq!(
+            TopicId::Calibration.recorded_as(&calibration_v1),
+            Ok(Some(328))
+        );
+        let unknown = Layout {
+            type_name: "mirror.Calibration.v0".into(),
+            ..calibration_v1
+        };
+        let why = TopicId::Calibration.recorded_as(&unknown).unwrap_err();
+        assert!(
+            why.contains("mirror.Calibration.v0") && why.contains("v2"),
+            "{why}"
+        );
+        assert!(
+            TopicId::Samples
+                .recorded_as(&v1(TopicId::Calibration))
+                .is_err()
+        );
+    }
 
     #[test]
     fn every_topic_has_one_name_and_round_trips_its_bytes() {

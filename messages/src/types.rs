@@ -402,9 +402,40 @@ impl CameraPose {
     }
 }
 
-/// A calibration of the mirror cameras.
+/// A calibration's stated 1-sigma uncertainty (see `formats::calibration`):
+/// all zero when not stated (a recording made before v2).
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
-#[type_name("mirror.Calibration.v1")]
+#[type_name("mirror.CalibrationUncertainty.v1")]
+#[repr(C)]
+pub struct CalibrationUncertainty {
+    /// 1 if stated.
+    pub stated: u32,
+    /// Valid entries in `joint_offsets_deg`.
+    pub dof: u32,
+    /// The fit's residual standard deviation per pixel coordinate, px.
+    pub residual_px: f64,
+    /// RMS angle between the true and the estimated normal, deg (0 without
+    /// a plane).
+    pub plane_angle_deg: f64,
+    /// The plane offset, mm (0 without a plane).
+    pub plane_distance_mm: f64,
+    /// Each encoder offset, deg; [`UNDETERMINED`] where the samples do not
+    /// determine it.
+    pub joint_offsets_deg: [f64; MAX_JOINTS],
+    /// RMS error of each mirror camera's centre, mm, left then right.
+    pub mirror_camera_centers_mm: [f64; 2],
+    /// RMS rotation error of each mirror camera, deg, left then right.
+    pub mirror_camera_angles_deg: [f64; 2],
+}
+
+/// A 1-sigma value for a parameter the samples do not determine (no NaN
+/// on the wire: messages are compared bit for bit).
+pub const UNDETERMINED: f64 = -1.0;
+
+/// A calibration of the mirror cameras. v2 appended `uncertainty` to v1;
+/// a v1 recording reads with it zero (not stated).
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[type_name("mirror.Calibration.v2")]
 #[repr(C)]
 pub struct CalibrationMsg {
     /// Stamp of the newest sample used, ns.
@@ -427,6 +458,8 @@ pub struct CalibrationMsg {
     pub joint_offsets: [f64; MAX_JOINTS],
     /// RMS training reprojection error, px.
     pub train_rms_px: f64,
+    /// What it is known to.
+    pub uncertainty: CalibrationUncertainty,
 }
 
 /// A test sample's prediction through the current calibration.
@@ -456,9 +489,10 @@ pub struct Prediction {
     pub error_px: f64,
 }
 
-/// A marker other than the arm's, located through the mirror.
+/// A marker other than the arm's, located through the mirror. v2 appended
+/// the covariance to v1; a v1 recording reads with it zero (not stated).
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
-#[type_name("mirror.LocatedObject.v1")]
+#[type_name("mirror.LocatedObject.v2")]
 #[repr(C)]
 pub struct LocatedObject {
     /// Stamp of the detection, ns.
@@ -471,6 +505,24 @@ pub struct LocatedObject {
     pub reserved: u32,
     /// Position in the world (robot) frame, mm.
     pub position: [f64; 3],
+    /// Predicted covariance of `position` (calibration and detection
+    /// noise), mm^2: xx, xy, xz, yy, yz, zz. Zero when not stated.
+    pub covariance_mm2: [f64; 6],
+}
+
+impl LocatedObject {
+    /// The predicted 1-sigma position error, mm: the RMS distance between
+    /// the true and the located point, `sqrt(trace)`. 0 when not stated.
+    pub fn sigma_mm(&self) -> f64 {
+        let c = &self.covariance_mm2;
+        (c[0] + c[3] + c[5]).max(0.0).sqrt()
+    }
+
+    /// The covariance as a matrix, mm^2.
+    pub fn covariance(&self) -> Matrix3<f64> {
+        let c = &self.covariance_mm2;
+        Matrix3::new(c[0], c[1], c[2], c[1], c[3], c[4], c[2], c[4], c[5])
+    }
 }
 
 /// The arm driver's raw joint positions (its encoders), as it reads them.
@@ -576,9 +628,13 @@ const _: () = {
     assert!(size_of::<JointState>() == 8 * 3 + 4 * 4 + 8 * MAX_JOINTS + 24);
     assert!(size_of::<MirrorSample>() == 16 + 8 + 8 * MAX_JOINTS + 24 + 32 + 24);
     assert!(size_of::<CameraPose>() == 12 * 8);
-    assert!(size_of::<CalibrationMsg>() == 16 + 16 + 32 + 2 * 96 + 8 * MAX_JOINTS + 8);
+    assert!(size_of::<CalibrationUncertainty>() == 8 + 3 * 8 + 8 * MAX_JOINTS + 4 * 8);
+    assert!(
+        size_of::<CalibrationMsg>()
+            == 16 + 16 + 32 + 2 * 96 + 8 * MAX_JOINTS + 8 + size_of::<CalibrationUncertainty>()
+    );
     assert!(size_of::<Prediction>() == 24 + 8 + 24 + 24 + 32 + 16);
-    assert!(size_of::<LocatedObject>() == 16 + 8 + 24);
+    assert!(size_of::<LocatedObject>() == 16 + 8 + 24 + 48);
     assert!(size_of::<JointPositions>() == 8 * 2 + 4 * 2 + 8 * MAX_JOINTS);
     assert!(size_of::<PoseGoal>() == 8 * 3 + 4 * 4 + 8 * MAX_JOINTS);
 };

@@ -20,10 +20,10 @@ use formats::evaluation::Evaluation;
 use geometry::triangulate::triangulate;
 use geometry::{Rig, Sample};
 use messages::{
-    CalibrationMsg, CameraPose, JointState, LocatedObject, MAX_JOINTS, MirrorSample, Phase,
-    Prediction, Role, StereoDetections,
+    CalibrationMsg, CalibrationUncertainty, CameraPose, JointState, LocatedObject, MAX_JOINTS,
+    MirrorSample, Phase, Prediction, Role, StereoDetections, UNDETERMINED,
 };
-use nalgebra::Vector2;
+use nalgebra::{Matrix3, Vector2};
 use runtime::Rejections;
 use serde::{Deserialize, Serialize};
 
@@ -619,6 +619,7 @@ impl Live {
             msg.dof = o.len().min(MAX_JOINTS) as u32;
             msg.joint_offsets[..msg.dof as usize].copy_from_slice(&o[..msg.dof as usize]);
         }
+        msg.uncertainty = uncertainty_msg(cal);
         msg
     }
 
@@ -669,12 +670,17 @@ impl Live {
             let refs = [&cal.mirror_cameras[0], &cal.mirror_cameras[1]];
             if let Ok(p) = triangulate(refs, [Vector2::from(m.center), Vector2::from(r.center)]) {
                 self.located.insert(m.id, p.into());
+                let c = cal
+                    .uncertainty
+                    .located_covariance(&cal.mirror_cameras, &p)
+                    .unwrap_or_else(Matrix3::zeros);
                 out.push(Output::Located(LocatedObject {
                     stamp_ns: d.stamp_ns,
                     revision: self.revision,
                     id: m.id,
                     reserved: 0,
                     position: p.into(),
+                    covariance_mm2: [c.m11, c.m12, c.m13, c.m22, c.m23, c.m33],
                 }));
             }
         }
@@ -716,4 +722,29 @@ impl Live {
             recovered: self.recovered.clone(),
         }
     }
+}
+
+/// The message form of a calibration's uncertainty.
+fn uncertainty_msg(cal: &Calibration) -> CalibrationUncertainty {
+    let u = &cal.uncertainty;
+    let plane_sigma = |sigma: Option<f64>| match (cal.plane, sigma) {
+        (None, _) => 0.0,
+        (Some(_), sigma) => sigma.unwrap_or(UNDETERMINED),
+    };
+    let mut msg = CalibrationUncertainty {
+        stated: 1,
+        residual_px: u.residual_px,
+        plane_angle_deg: plane_sigma(u.plane_angle_deg),
+        plane_distance_mm: plane_sigma(u.plane_distance_mm),
+        mirror_camera_centers_mm: u.mirror_camera_centers_mm,
+        mirror_camera_angles_deg: u.mirror_camera_angles_deg,
+        ..Default::default()
+    };
+    if let Some(o) = &u.joint_offsets_deg {
+        msg.dof = o.len().min(MAX_JOINTS) as u32;
+        for (slot, sigma) in msg.joint_offsets_deg.iter_mut().zip(o) {
+            *slot = sigma.unwrap_or(UNDETERMINED);
+        }
+    }
+    msg
 }

@@ -286,6 +286,16 @@ fn fields(m: &Message<'_>) -> Vec<(&'static str, Vec<f64>)> {
                 f(&c.joint_offsets[..(c.dof as usize).min(c.joint_offsets.len())]),
             ),
             ("train_rms_px", vec![c.train_rms_px]),
+            ("uncertainty", {
+                let u = &c.uncertainty;
+                let mut v = vec![u.residual_px, u.plane_angle_deg, u.plane_distance_mm];
+                v.extend_from_slice(
+                    &u.joint_offsets_deg[..(u.dof as usize).min(u.joint_offsets_deg.len())],
+                );
+                v.extend(u.mirror_camera_centers_mm);
+                v.extend(u.mirror_camera_angles_deg);
+                v
+            }),
         ],
         Message::Predictions(p) => vec![
             ("pose", u(p.pose)),
@@ -305,6 +315,7 @@ fn fields(m: &Message<'_>) -> Vec<(&'static str, Vec<f64>)> {
             ("revision", u(l.revision)),
             ("id", u(u64::from(l.id))),
             ("position", f(&l.position)),
+            ("covariance_mm2", f(&l.covariance_mm2)),
         ],
         Message::JointPositions(p) => vec![
             ("seq", u(p.seq)),
@@ -399,6 +410,13 @@ impl Deltas {
                     );
                 }
                 self.push("train_rms_px", (x.train_rms_px - y.train_rms_px).abs());
+                let (a, b) = (x.uncertainty, y.uncertainty);
+                if a.stated != 0 && b.stated != 0 {
+                    self.push(
+                        "sigma_plane_angle_deg",
+                        (a.plane_angle_deg - b.plane_angle_deg).abs(),
+                    );
+                }
             }
             (Message::Predictions(x), Message::Predictions(y)) => {
                 self.push(
@@ -418,6 +436,7 @@ impl Deltas {
             }
             (Message::Located(x), Message::Located(y)) => {
                 self.push("position_mm", (v3(&x.position) - v3(&y.position)).norm());
+                self.push("sigma_mm", (x.sigma_mm() - y.sigma_mm()).abs());
             }
             (Message::JointState(x), Message::JointState(y)) => {
                 let dq = x

@@ -159,11 +159,12 @@ fn trusted_length(path: &Path) -> Result<(u64, Option<String>), String> {
 /// field must not make the reader allocate without bound.
 const RECORD_LIMIT: usize = 512 << 20;
 
-/// Which lossless topic a channel carries, after checking its schema.
+/// Which lossless topic a channel carries, after checking its schema, and
+/// the size of its earlier layout if it was recorded with one.
 fn lossless_topic(
     channel: &mcap::records::Channel,
     schema: Option<&(String, Vec<u8>)>,
-) -> Result<Option<TopicId>, String> {
+) -> Result<Option<(TopicId, Option<usize>)>, String> {
     if channel.message_encoding != MESSAGE_ENCODING {
         return Ok(None);
     }
@@ -174,21 +175,15 @@ fn lossless_topic(
             "channel `{name}` is {MESSAGE_ENCODING} but not a topic this build knows"
         ));
     };
-    let expected = topic.layout();
     let found: Option<Layout> = schema.and_then(|(_, data)| serde_json::from_slice(data).ok());
     match found {
-        Some(found) if found.type_name == expected.type_name && found.size == expected.size => {
-            Ok(Some(topic))
-        }
-        Some(found) => Err(format!(
-            "channel `{}` was recorded as {} ({} bytes); this build reads {} ({} bytes): \
-             replay it with the version that recorded it",
-            name,
-            one_line(&found.type_name),
-            found.size,
-            expected.type_name,
-            expected.size
-        )),
+        Some(found) => match topic.recorded_as(&found) {
+            Ok(legacy) => Ok(Some((topic, legacy))),
+            Err(why) => Err(format!(
+                "channel `{name}` {}: replay it with the version that recorded it",
+                one_line(&why)
+            )),
+        },
         None => Err(format!("channel `{name}` has no readable layout schema")),
     }
 }
@@ -274,7 +269,8 @@ impl Recording {
 
     /// Calls `f` with the topic, log time and bytes of every message of
     /// every channel (viewing channels too), in file order, up to the end of
-    /// the readable part.
+    /// the readable part. A lossless message recorded with an earlier layout
+    /// comes as this build reads it (zero-filled to the current layout).
     pub fn for_each_raw(&self, mut f: impl FnMut(&str, u64, &[u8])) -> Result<(), ReadError> {
         self.visit(
             |_, _| Ok::<_, ReadError>(true),
@@ -333,7 +329,8 @@ impl Recording {
         );
         let (mut read, mut other, mut undecodable) = (0u64, 0u64, 0u64);
         let mut schemas: BTreeMap<u16, (String, Vec<u8>)> = BTreeMap::new();
-        let mut channels: BTreeMap<u16, (Option<TopicId>, String)> = BTreeMap::new();
+        let mut channels: BTreeMap<u16, (Option<(TopicId, Option<usize>)>, String)> =
+            BTreeMap::new();
         let mut damage = None;
         while let Some(event) = reader.next_event() {
             let event = match event {
@@ -382,15 +379,26 @@ impl Recording {
                         break;
                     };
                     if let Some(raw) = raw.as_mut() {
-                        raw(name, header.log_time, &data);
+                        match topic {
+                            Some((t, Some(size))) if data.len() == *size => {
+                                let mut upgraded = data.to_vec();
+                                upgraded.resize(t.layout().size, 0);
+                                raw(name, header.log_time, &upgraded);
+                            }
+                            _ => raw(name, header.log_time, &data),
+                        }
                     }
-                    let Some(topic) = *topic else {
+                    let Some((topic, legacy)) = *topic else {
                         other += 1;
                         continue;
                     };
                     // A malformed message recorded as published (a frame whose
                     // header does not match its size) is counted and skipped.
-                    let Ok(decoded) = Message::decode(topic, &data) else {
+                    let decoded = match legacy {
+                        None => Message::decode(topic, &data),
+                        Some(size) => Message::decode_legacy(topic, &data, size),
+                    };
+                    let Ok(decoded) = decoded else {
                         undecodable += 1;
                         continue;
                     };

@@ -7,7 +7,8 @@ use foxglove::Encode;
 use foxglove::messages::{
     CameraCalibration, CircleAnnotation, Color, CubePrimitive, FrameTransform, FrameTransforms,
     ImageAnnotations, Point2, PointsAnnotation, Pose, Quaternion, RawImage, SceneEntity,
-    SceneUpdate, SpherePrimitive, TextAnnotation, Timestamp, Vector3, points_annotation,
+    SceneUpdate, SpherePrimitive, TextAnnotation, TextPrimitive, Timestamp, Vector3,
+    points_annotation,
 };
 use geometry::{Camera, Rig};
 use messages::{CalibrationMsg, CameraMarkers, Encoding, FrameHeader, JointState, LocatedObject};
@@ -442,25 +443,113 @@ fn detections(stamp_ns: i64, markers: &CameraMarkers) -> ImageAnnotations {
 }
 
 fn located(l: &LocatedObject) -> SceneUpdate {
+    let position = metres(&nalgebra::Vector3::from(l.position));
+    let mut spheres = vec![SpherePrimitive {
+        pose: Some(Pose {
+            position: position.clone(),
+            orientation: quaternion(&UnitQuaternion::identity()),
+        }),
+        size: Some(Vector3 {
+            x: 0.03,
+            y: 0.03,
+            z: 0.03,
+        }),
+        color: color(1.0, 0.5, 0.0, 0.9),
+    }];
+    let mut texts = Vec::new();
+    if let Some((orientation, axes_m)) = one_sigma_ellipsoid(l) {
+        spheres.push(SpherePrimitive {
+            pose: Some(Pose {
+                position: position.clone(),
+                orientation: quaternion(&orientation),
+            }),
+            size: Some(Vector3 {
+                x: 2.0 * axes_m.x,
+                y: 2.0 * axes_m.y,
+                z: 2.0 * axes_m.z,
+            }),
+            color: color(1.0, 0.5, 0.0, 0.2),
+        });
+        texts.push(TextPrimitive {
+            pose: Some(Pose {
+                position,
+                orientation: quaternion(&UnitQuaternion::identity()),
+            }),
+            billboard: true,
+            font_size: 14.0,
+            scale_invariant: true,
+            color: color(1.0, 1.0, 1.0, 1.0),
+            text: format!("marker {}: ±{:.1} mm (1σ)", l.id, l.sigma_mm()),
+        });
+    }
     SceneUpdate {
         deletions: vec![],
         entities: vec![SceneEntity {
             timestamp: timestamp(l.stamp_ns),
             frame_id: WORLD.into(),
             id: format!("object {}", l.id),
-            spheres: vec![SpherePrimitive {
-                pose: Some(Pose {
-                    position: metres(&nalgebra::Vector3::from(l.position)),
-                    orientation: quaternion(&UnitQuaternion::identity()),
-                }),
-                size: Some(Vector3 {
-                    x: 0.03,
-                    y: 0.03,
-                    z: 0.03,
-                }),
-                color: color(1.0, 0.5, 0.0, 0.9),
-            }],
+            spheres,
+            texts,
             ..Default::default()
         }],
+    }
+}
+
+/// The 1-sigma ellipsoid of a located object's covariance: its orientation
+/// and semi-axes in metres, or `None` when no covariance is stated.
+fn one_sigma_ellipsoid(l: &LocatedObject) -> Option<(UnitQuaternion<f64>, nalgebra::Vector3<f64>)> {
+    let covariance = l.covariance();
+    if covariance.iter().all(|v| *v == 0.0) || !covariance.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let eigen = covariance.symmetric_eigen();
+    let mut axes = eigen.eigenvectors;
+    if axes.determinant() < 0.0 {
+        axes.set_column(2, &-axes.column(2));
+    }
+    let orientation =
+        UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(axes));
+    let semi_axes = eigen.eigenvalues.map(|v| v.max(0.0).sqrt() / 1000.0);
+    Some((orientation, semi_axes))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_located_objects_ellipsoid_is_its_covariance() {
+        // Sigmas 10, 20, 40 mm along axes turned about z and x.
+        let turn = nalgebra::Rotation3::from_euler_angles(0.4, 0.0, 0.9);
+        let covariance = turn.matrix()
+            * nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(100.0, 400.0, 1600.0))
+            * turn.matrix().transpose();
+        let c = covariance;
+        let l = LocatedObject {
+            id: 7,
+            covariance_mm2: [c.m11, c.m12, c.m13, c.m22, c.m23, c.m33],
+            ..Default::default()
+        };
+        let (orientation, semi_axes) = one_sigma_ellipsoid(&l).unwrap();
+        let r = orientation.to_rotation_matrix();
+        let back = r.matrix()
+            * nalgebra::Matrix3::from_diagonal(&semi_axes.map(|a| (a * 1000.0).powi(2)))
+            * r.matrix().transpose();
+        assert!((back - covariance).norm() < 1e-6, "{back} vs {covariance}");
+        let mut sorted: Vec<f64> = semi_axes.iter().map(|a| a * 1000.0).collect();
+        sorted.sort_by(f64::total_cmp);
+        assert!((sorted[0] - 10.0).abs() < 1e-9 && (sorted[2] - 40.0).abs() < 1e-9);
+        let scene = located(&l);
+        let entity = &scene.entities[0];
+        assert_eq!(entity.spheres.len(), 2, "the marker and its ellipsoid");
+        assert!(
+            entity.texts[0].text.contains("±45.8 mm"),
+            "{}",
+            entity.texts[0].text
+        );
+        // A recording made before the covariance existed: the marker alone.
+        let old = located(&LocatedObject::default());
+        assert_eq!(old.entities[0].spheres.len(), 1);
+        assert!(old.entities[0].texts.is_empty());
     }
 }
