@@ -116,6 +116,10 @@ pub struct LiveReport {
     pub calibration: Option<formats::calibration::CalibrationFile>,
     /// Last position of each located object: id -> [x, y, z] mm.
     pub located: BTreeMap<u32, [f64; 3]>,
+    /// The predicted 1-sigma error of each of those positions, mm (RMS
+    /// distance to the true point; see `docs/methods.md`).
+    #[serde(default)]
+    pub located_sigma_mm: BTreeMap<u32, f64>,
     /// Why the last calibration attempt failed, if it did, or why there is
     /// no calibration at all.
     pub last_error: Option<String>,
@@ -200,6 +204,7 @@ pub struct Live {
     calibration: Option<Calibration>,
     revision: u64,
     located: BTreeMap<u32, [f64; 3]>,
+    located_sigma_mm: BTreeMap<u32, f64>,
     last_error: Option<String>,
     counters: Counters,
     finished: bool,
@@ -234,6 +239,7 @@ impl Live {
             calibration: None,
             revision: 0,
             located: BTreeMap::new(),
+            located_sigma_mm: BTreeMap::new(),
             last_error: None,
             counters: Counters::default(),
             finished: false,
@@ -674,6 +680,8 @@ impl Live {
                     .uncertainty
                     .located_covariance(&cal.mirror_cameras, &p)
                     .unwrap_or_else(Matrix3::zeros);
+                self.located_sigma_mm
+                    .insert(m.id, crate::calibrate::uncertainty::rms_error_mm(&c));
                 out.push(Output::Located(LocatedObject {
                     stamp_ns: d.stamp_ns,
                     revision: self.revision,
@@ -706,6 +714,7 @@ impl Live {
             evaluation,
             calibration: self.calibration.as_ref().map(|c| c.to_file(&self.rig)),
             located: self.located.clone(),
+            located_sigma_mm: self.located_sigma_mm.clone(),
             last_error: self.last_error.clone().or_else(|| {
                 self.calibration.is_none().then(|| {
                     format!(

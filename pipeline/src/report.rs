@@ -111,6 +111,10 @@ pub struct TruthErrors {
     pub camera_rotation_deg: Option<[f64; 2]>,
     /// How far the hidden object was located from where it is, mm.
     pub hidden_object_error_mm: Option<f64>,
+    /// The stated 1-sigma of the plane angle, degrees.
+    pub plane_angle_sigma_deg: Option<f64>,
+    /// The stated 1-sigma of the hidden object's position, mm.
+    pub hidden_object_sigma_mm: Option<f64>,
 }
 
 impl TruthErrors {
@@ -142,8 +146,18 @@ impl TruthErrors {
                     .get(&h.id)
                     .map(|p| (nalgebra::Vector3::from(*p) - h.center).norm())
             }),
+            plane_angle_sigma_deg: cal
+                .and_then(|c| c.uncertainty.as_ref())
+                .and_then(|u| u.plane_angle_deg),
+            hidden_object_sigma_mm: hidden
+                .and_then(|h| report.located_sigma_mm.get(&h.id).copied()),
         }
     }
+}
+
+/// A small angle: three decimals.
+fn fine(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.3}"))
 }
 
 fn cell(v: Option<f64>) -> String {
@@ -257,28 +271,32 @@ pub fn table(results: &[PlacementResult], method: Method) -> String {
         "Live pipeline, method {method}: mean errors on the test poses of each placement\n"
     );
     s += &format!(
-        "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10}\n",
+        "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10} {:>10} {:>10}\n",
         "",
         "mirror 3D mm",
         "direct 3D mm",
         "mirror 2D px",
         "direct 2D px",
         "plane deg",
-        "object mm"
+        "±1σ deg",
+        "object mm",
+        "±1σ mm"
     );
     let p = PAPER_FIGURES;
     s += &format!(
-        "  {:<30} {:>12.2} {:>12.2} {:>12.2} {:>12.2} {:>10} {:>10}\n",
+        "  {:<30} {:>12.2} {:>12.2} {:>12.2} {:>12.2} {:>10} {:>10} {:>10} {:>10}\n",
         "Hart & Scassellati 2012 (Nico)",
         p.mirror_3d_mm,
         p.direct_3d_mm,
         p.mirror_2d_px,
         p.direct_2d_px,
         "-",
+        "-",
+        "-",
         "-"
     );
-    let mut sums = [0.0; 6];
-    let mut counts = [0usize; 6];
+    let mut sums = [0.0; 8];
+    let mut counts = [0usize; 8];
     for r in results {
         let (Some(report), Some(truth)) = (&r.report, &r.truth) else {
             continue;
@@ -290,7 +308,9 @@ pub fn table(results: &[PlacementResult], method: Method) -> String {
             e.and_then(|e| e.mirror_2d_px),
             e.and_then(|e| e.direct_2d_px),
             truth.plane_angle_deg,
+            truth.plane_angle_sigma_deg,
             truth.hidden_object_error_mm,
+            truth.hidden_object_sigma_mm,
         ];
         for (i, v) in values.iter().enumerate() {
             if let Some(v) = v {
@@ -299,28 +319,32 @@ pub fn table(results: &[PlacementResult], method: Method) -> String {
             }
         }
         s += &format!(
-            "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10}   ({} train / {} test samples)\n",
+            "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10} {:>10} {:>10}   ({} train / {} test samples)\n",
             format!("mirror placement {}", r.mirror),
             cell(values[0]),
             cell(values[1]),
             cell(values[2]),
             cell(values[3]),
-            cell(values[4]),
-            cell(values[5]),
+            fine(values[4]),
+            fine(values[5]),
+            cell(values[6]),
+            cell(values[7]),
             report.train_samples,
             report.test_samples
         );
     }
     let mean = |i: usize| (counts[i] > 0).then(|| sums[i] / counts[i] as f64);
     s += &format!(
-        "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10}\n",
+        "  {:<30} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10} {:>10} {:>10}\n",
         "mean",
         cell(mean(0)),
         cell(mean(1)),
         cell(mean(2)),
         cell(mean(3)),
-        cell(mean(4)),
-        cell(mean(5))
+        fine(mean(4)),
+        fine(mean(5)),
+        cell(mean(6)),
+        cell(mean(7))
     );
     s
 }
