@@ -60,7 +60,7 @@ pub enum Output {
     /// A new paired sample.
     Sample(MirrorSample),
     /// A new calibration.
-    Calibration(CalibrationMsg),
+    Calibration(Box<CalibrationMsg>),
     /// A test sample's prediction.
     Prediction(Prediction),
     /// A marker located through the mirror.
@@ -584,7 +584,7 @@ impl Live {
                 self.last_error = None;
                 let msg = self.calibration_msg(&cal, stamp_ns, self.revision);
                 self.calibration = Some(cal);
-                out.push(Output::Calibration(msg));
+                out.push(Output::Calibration(Box::new(msg)));
             }
             Err(e) => {
                 // Keep collecting: a later sample may make the problem well

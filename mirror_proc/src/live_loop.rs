@@ -87,12 +87,14 @@ impl Outputs {
                     revision = c.revision,
                     samples = c.samples,
                     rms_px = c.train_rms_px,
+                    plane_sigma_deg = c.uncertainty.plane_angle_deg,
+                    plane_sigma_mm = c.uncertainty.plane_distance_mm,
                     "calibration"
                 );
                 if let Some(journal) = &mut self.journal {
                     journal.append::<topics::Calibration>(&c)?;
                 }
-                self.calibrations.send(c)?
+                self.calibrations.send(*c)?
             }
             Output::Prediction(p) => self.predictions.send(p)?,
             Output::Located(l) => self.located.send(l)?,

@@ -452,7 +452,7 @@ fn a_stage_resumed_from_its_journal_ends_with_the_uninterrupted_calibration() {
         out.iter()
             .rev()
             .find_map(|o| match o {
-                Output::Calibration(c) => Some(*c),
+                Output::Calibration(c) => Some(**c),
                 _ => None,
             })
             .expect("a calibration")
@@ -500,7 +500,7 @@ fn a_stage_resumed_from_its_journal_ends_with_the_uninterrupted_calibration() {
         let calibrations: Vec<_> = journaled
             .iter()
             .filter_map(|o| match o {
-                Output::Calibration(c) => Some(*c),
+                Output::Calibration(c) => Some(**c),
                 _ => None,
             })
             .collect();
@@ -511,7 +511,7 @@ fn a_stage_resumed_from_its_journal_ends_with_the_uninterrupted_calibration() {
         assert_eq!(recovery.calibration_reproduced, Some(true));
         if drop_last_calibration {
             // The calibration the crash prevented is made and published again.
-            assert_eq!(pending, vec![Output::Calibration(last(&before))]);
+            assert_eq!(pending, vec![Output::Calibration(Box::new(last(&before)))]);
         } else {
             assert!(pending.is_empty());
         }

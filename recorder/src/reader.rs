@@ -159,12 +159,16 @@ fn trusted_length(path: &Path) -> Result<(u64, Option<String>), String> {
 /// field must not make the reader allocate without bound.
 const RECORD_LIMIT: usize = 512 << 20;
 
+/// A lossless channel's topic, and the size of the earlier layout it was
+/// recorded with, if it was.
+type LosslessChannel = (TopicId, Option<usize>);
+
 /// Which lossless topic a channel carries, after checking its schema, and
 /// the size of its earlier layout if it was recorded with one.
 fn lossless_topic(
     channel: &mcap::records::Channel,
     schema: Option<&(String, Vec<u8>)>,
-) -> Result<Option<(TopicId, Option<usize>)>, String> {
+) -> Result<Option<LosslessChannel>, String> {
     if channel.message_encoding != MESSAGE_ENCODING {
         return Ok(None);
     }
@@ -329,8 +333,7 @@ impl Recording {
         );
         let (mut read, mut other, mut undecodable) = (0u64, 0u64, 0u64);
         let mut schemas: BTreeMap<u16, (String, Vec<u8>)> = BTreeMap::new();
-        let mut channels: BTreeMap<u16, (Option<(TopicId, Option<usize>)>, String)> =
-            BTreeMap::new();
+        let mut channels: BTreeMap<u16, (Option<LosslessChannel>, String)> = BTreeMap::new();
         let mut damage = None;
         while let Some(event) = reader.next_event() {
             let event = match event {

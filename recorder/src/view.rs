@@ -446,7 +446,7 @@ fn located(l: &LocatedObject) -> SceneUpdate {
     let position = metres(&nalgebra::Vector3::from(l.position));
     let mut spheres = vec![SpherePrimitive {
         pose: Some(Pose {
-            position: position.clone(),
+            position,
             orientation: quaternion(&UnitQuaternion::identity()),
         }),
         size: Some(Vector3 {
@@ -460,7 +460,7 @@ fn located(l: &LocatedObject) -> SceneUpdate {
     if let Some((orientation, axes_m)) = one_sigma_ellipsoid(l) {
         spheres.push(SpherePrimitive {
             pose: Some(Pose {
-                position: position.clone(),
+                position,
                 orientation: quaternion(&orientation),
             }),
             size: Some(Vector3 {

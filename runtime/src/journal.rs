@@ -4,10 +4,14 @@
 //! The journal is an MCAP file of lossless channels, the same encoding as a
 //! recording (the exact message bytes, with a layout schema per channel),
 //! so `mcap` tools and the recorder's reader open it. Each message is
-//! written as its own chunk, with its CRC, and flushed to the operating
-//! system before [`Journal::append`] returns: a stage killed at any moment
-//! loses at most the message it was writing. (It is not synced to disk:
-//! what the OS holds survives a crashed or killed process, not a power cut.)
+//! written as its own chunk, with its CRC, and synced to the disk
+//! (`fdatasync`) before [`Journal::append`] returns: a stage killed at any
+//! moment, or a machine whose power is cut, loses at most the message it
+//! was writing. Journals take a message per pose, never per frame, so the
+//! sync (0.13 ms an append on our test machine's disk, against 9 us
+//! flushed; `cargo bench -p runtime --bench journal`) is paid a few
+//! times a second at most. [`Durability::Flushed`]
+//! hands each message to the operating system only, as before.
 //!
 //! [`Journal::open`] reads what an earlier run wrote up to the first
 //! incomplete or damaged chunk (a kill in the middle of a write), says what
@@ -103,10 +107,23 @@ impl Recovered {
     }
 }
 
+/// How far each appended message goes before [`Journal::append`] returns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Durability {
+    /// To the disk (`fdatasync`): survives a killed process and a power cut.
+    #[default]
+    Synced,
+    /// To the operating system: survives a killed process, not a power cut.
+    Flushed,
+}
+
 /// An open journal, appending.
 pub struct Journal {
     path: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
+    /// The same open file, to sync what the writer flushed.
+    file: File,
+    durability: Durability,
     channels: HashMap<TopicId, u16>,
     sequence: u32,
 }
@@ -119,6 +136,15 @@ impl Journal {
         path: impl AsRef<Path>,
         topics: &[TopicId],
     ) -> Result<(Self, Recovered), JournalError> {
+        Self::open_with(path, topics, Durability::default())
+    }
+
+    /// [`Journal::open`], each append going as far as `durability` says.
+    pub fn open_with(
+        path: impl AsRef<Path>,
+        topics: &[TopicId],
+        durability: Durability,
+    ) -> Result<(Self, Recovered), JournalError> {
         let path = path.as_ref().to_path_buf();
         let recovered = if path.exists() {
             read(&path)?
@@ -128,13 +154,22 @@ impl Journal {
         let fresh = path.with_extension("mcap.new");
         let mut journal = Self::create(&fresh, &path, topics)?;
         for e in &recovered.entries {
-            journal.write(e.topic, &e.bytes)?;
+            journal.write(e.topic, &e.bytes, Durability::Flushed)?;
+        }
+        journal.durability = durability;
+        // The copy reaches the disk before it replaces the original, and
+        // the rename before anything is appended.
+        if durability == Durability::Synced {
+            journal.sync()?;
         }
         std::fs::rename(&fresh, &path).map_err(|source| JournalError::Io {
             path: path.clone(),
             what: "cannot replace it with its recovered copy",
             source,
         })?;
+        if durability == Durability::Synced {
+            sync_directory_of(&path)?;
+        }
         Ok((journal, recovered))
     }
 
@@ -143,11 +178,12 @@ impl Journal {
             let path = path.to_path_buf();
             move |source| JournalError::Mcap { path, what, source }
         };
-        let out = File::create(file).map_err(|source| JournalError::Io {
-            path: path.to_path_buf(),
-            what: "cannot create",
-            source,
-        })?;
+        let io_error = |what| {
+            let path = path.to_path_buf();
+            move |source| JournalError::Io { path, what, source }
+        };
+        let out = File::create(file).map_err(io_error("cannot create"))?;
+        let sync_handle = out.try_clone().map_err(io_error("cannot create"))?;
         // One chunk per message (finished by the flush after each append),
         // uncompressed: each record carries its own CRC and is complete on
         // its own.
@@ -172,18 +208,33 @@ impl Journal {
         Ok(Self {
             path: path.to_path_buf(),
             writer,
+            file: sync_handle,
+            durability: Durability::Flushed,
             channels,
             sequence: 0,
         })
     }
 
-    /// Appends `message` on topic `T` and hands it to the operating system
-    /// before returning.
+    /// Appends `message` on topic `T`; it is on the disk (or with the
+    /// operating system, see [`Durability`]) when this returns.
     pub fn append<T: SmallTopic>(&mut self, message: &T::Message) -> Result<(), JournalError> {
-        self.write(T::ID, bytemuck::bytes_of(message))
+        self.write(T::ID, bytemuck::bytes_of(message), self.durability)
     }
 
-    fn write(&mut self, topic: TopicId, bytes: &[u8]) -> Result<(), JournalError> {
+    fn sync(&mut self) -> Result<(), JournalError> {
+        self.file.sync_data().map_err(|source| JournalError::Io {
+            path: self.path.clone(),
+            what: "cannot sync to disk",
+            source,
+        })
+    }
+
+    fn write(
+        &mut self,
+        topic: TopicId,
+        bytes: &[u8],
+        durability: Durability,
+    ) -> Result<(), JournalError> {
         let Some(&channel_id) = self.channels.get(&topic) else {
             return Err(JournalError::Foreign {
                 path: self.path.clone(),
@@ -206,13 +257,33 @@ impl Journal {
                 bytes,
             )
             .map_err(mcap_error("cannot append"))?;
-        self.writer.flush().map_err(mcap_error("cannot append"))
+        self.writer.flush().map_err(mcap_error("cannot append"))?;
+        if durability == Durability::Synced {
+            self.sync()?;
+        }
+        Ok(())
     }
 
     /// The journal's file.
     pub fn path(&self) -> &Path {
         &self.path
     }
+}
+
+/// Syncs the directory holding `path`, so that a rename into it survives a
+/// power cut.
+fn sync_directory_of(path: &Path) -> Result<(), JournalError> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    File::open(dir)
+        .and_then(|d| d.sync_all())
+        .map_err(|source| JournalError::Io {
+            path: path.to_path_buf(),
+            what: "cannot sync its directory",
+            source,
+        })
 }
 
 /// Reads the complete messages of the journal at `path`, stopping at the
