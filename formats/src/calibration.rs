@@ -89,6 +89,15 @@ pub struct UncertaintyEntry {
     pub undetermined: Vec<String>,
 }
 
+/// A sample the calibration set aside as not fitting the others.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RejectedEntry {
+    /// Its pose id.
+    pub pose: u64,
+    /// Its RMS reprojection error over both cameras under the calibration, px.
+    pub residual_px: f64,
+}
+
 /// A calibration as stored on disk.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationFile {
@@ -113,6 +122,9 @@ pub struct CalibrationFile {
     /// What the solved values are known to.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uncertainty: Option<UncertaintyEntry>,
+    /// Samples set aside as not fitting the others.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rejected_samples: Vec<RejectedEntry>,
 }
 
 impl CalibrationFile {
@@ -146,7 +158,14 @@ impl CalibrationFile {
             train_rms_px,
             samples,
             uncertainty: None,
+            rejected_samples: Vec::new(),
         }
+    }
+
+    /// With the samples it set aside.
+    pub fn with_rejected(mut self, rejected: Vec<RejectedEntry>) -> Self {
+        self.rejected_samples = rejected;
+        self
     }
 
     /// With its uncertainty.

@@ -412,6 +412,10 @@ pub struct CalibrationUncertainty {
     pub stated: u32,
     /// Valid entries in `joint_offsets_deg`.
     pub dof: u32,
+    /// Training samples the outlier test set aside (not in `samples`).
+    pub rejected_samples: u32,
+    /// Explicit padding.
+    pub reserved: u32,
     /// The fit's residual standard deviation per pixel coordinate, px.
     pub residual_px: f64,
     /// RMS angle between the true and the estimated normal, deg (0 without
@@ -628,7 +632,7 @@ const _: () = {
     assert!(size_of::<JointState>() == 8 * 3 + 4 * 4 + 8 * MAX_JOINTS + 24);
     assert!(size_of::<MirrorSample>() == 16 + 8 + 8 * MAX_JOINTS + 24 + 32 + 24);
     assert!(size_of::<CameraPose>() == 12 * 8);
-    assert!(size_of::<CalibrationUncertainty>() == 8 + 3 * 8 + 8 * MAX_JOINTS + 4 * 8);
+    assert!(size_of::<CalibrationUncertainty>() == 16 + 3 * 8 + 8 * MAX_JOINTS + 4 * 8);
     assert!(
         size_of::<CalibrationMsg>()
             == 16 + 16 + 32 + 2 * 96 + 8 * MAX_JOINTS + 8 + size_of::<CalibrationUncertainty>()

@@ -205,6 +205,8 @@ pub struct Live {
     revision: u64,
     located: BTreeMap<u32, [f64; 3]>,
     located_sigma_mm: BTreeMap<u32, f64>,
+    /// Poses whose rejection by the outlier test has been logged.
+    rejections_logged: BTreeSet<u64>,
     last_error: Option<String>,
     counters: Counters,
     finished: bool,
@@ -240,6 +242,7 @@ impl Live {
             revision: 0,
             located: BTreeMap::new(),
             located_sigma_mm: BTreeMap::new(),
+            rejections_logged: BTreeSet::new(),
             last_error: None,
             counters: Counters::default(),
             finished: false,
@@ -580,6 +583,15 @@ impl Live {
         let samples: Vec<Sample> = self.train.iter().map(MirrorSample::to_sample).collect();
         match calibrate(&self.rig, &samples, self.config.method) {
             Ok(cal) => {
+                for r in &cal.rejected {
+                    if self.rejections_logged.insert(r.pose) {
+                        tracing::warn!(
+                            pose = r.pose,
+                            residual_px = r.residual_px,
+                            "sample set aside: it does not fit the others (a wrong pairing or a misread marker?)"
+                        );
+                    }
+                }
                 self.revision += 1;
                 self.last_error = None;
                 let msg = self.calibration_msg(&cal, stamp_ns, self.revision);
@@ -742,6 +754,7 @@ fn uncertainty_msg(cal: &Calibration) -> CalibrationUncertainty {
     };
     let mut msg = CalibrationUncertainty {
         stated: 1,
+        rejected_samples: cal.rejected.len() as u32,
         residual_px: u.residual_px,
         plane_angle_deg: plane_sigma(u.plane_angle_deg),
         plane_distance_mm: plane_sigma(u.plane_distance_mm),

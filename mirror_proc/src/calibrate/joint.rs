@@ -113,6 +113,7 @@ pub(super) fn calibrate(
         train_rms_px: rms_px(&r),
         samples: obs.len(),
         uncertainty,
+        rejected: Vec::new(),
     })
 }
 

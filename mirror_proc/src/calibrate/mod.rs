@@ -119,6 +119,18 @@ pub struct Calibration {
     pub samples: usize,
     /// What the solved values are known to.
     pub uncertainty: Uncertainty,
+    /// Samples set aside as not fitting the others (a wrong pairing, a
+    /// misread marker), with their residuals under this calibration.
+    pub rejected: Vec<RejectedSample>,
+}
+
+/// A sample set aside by the outlier test.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RejectedSample {
+    /// Its pose id.
+    pub pose: u64,
+    /// Its RMS reprojection error over both cameras, px.
+    pub residual_px: f64,
 }
 
 impl Calibration {
@@ -135,12 +147,23 @@ impl Calibration {
         )
         .with_joint_names(rig)
         .with_uncertainty(self.uncertainty.to_file())
+        .with_rejected(
+            self.rejected
+                .iter()
+                .map(|r| formats::calibration::RejectedEntry {
+                    pose: r.pose,
+                    residual_px: r.residual_px,
+                })
+                .collect(),
+        )
     }
 }
 
 /// One mirror sample prepared for a solver.
 #[derive(Debug, Clone)]
 pub(crate) struct Observation {
+    /// Its pose id.
+    pub pose: u64,
     /// The end-effector model's prediction `J` (no offsets).
     pub model_point: Vector3<f64>,
     /// Joint readings, when known.
@@ -213,6 +236,7 @@ pub(crate) fn prepare(
         let reflected_point = triangulate(rig.camera_refs(), s.pixels)
             .map_err(|e| bad(format!("cannot triangulate: {e}")))?;
         out.push(Observation {
+            pose: s.pose,
             model_point,
             joints: s.joints.clone(),
             reflected_point,
@@ -305,21 +329,116 @@ pub(crate) fn rms_px(residuals: &nalgebra::DVector<f64>) -> f64 {
 }
 
 /// Calibrates the mirror cameras from `samples` (mirror views) with `method`.
+///
+/// Samples that do not fit the others are found and set aside: after a
+/// least-squares fit on all of them, each sample's squared reprojection
+/// error (both cameras, 4 coordinates) is compared with the noise scale
+/// the samples show (their median, which half of them may exceed without
+/// moving it); a sample beyond the 99.9% point of that noise is set aside
+/// and the rest refitted, until the set stops changing. Every sample is
+/// judged again against each new fit, so one set aside by a fit that the
+/// outliers had pulled comes back. The final calibration is a plain
+/// least-squares fit on the samples kept.
 pub fn calibrate(
     rig: &Rig,
     samples: &[Sample],
     method: Method,
 ) -> Result<Calibration, CalibrateError> {
     let obs = prepare(rig, samples, method == Method::JointKinematics)?;
+    let mut cal = solve(rig, &obs, method)?;
+    let mut kept = vec![true; obs.len()];
+    for _ in 0..MAX_REJECTION_ROUNDS {
+        let errors = squared_errors(rig, &obs, &cal);
+        let keep = consistent(&errors);
+        let count = keep.iter().filter(|k| **k).count();
+        // Setting aside more than a third is not outliers but a model that
+        // does not fit (judged below), and too few left cannot be solved.
+        if keep == kept || count < MIN_SAMPLES || count * 3 < 2 * obs.len() {
+            break;
+        }
+        let subset: Vec<Observation> = obs
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(o, _)| o.clone())
+            .collect();
+        cal = solve(rig, &subset, method)?;
+        kept = keep;
+    }
+    let errors = squared_errors(rig, &obs, &cal);
+    cal.rejected = obs
+        .iter()
+        .zip(&kept)
+        .zip(&errors)
+        .filter(|((_, k), _)| !**k)
+        .map(|((o, _), e)| RejectedSample {
+            pose: o.pose,
+            residual_px: (e / 2.0).sqrt(),
+        })
+        .collect();
+    if cal.train_rms_px > MAX_TRAIN_RMS_PX {
+        return Err(CalibrateError::PoorFit {
+            rms_px: cal.train_rms_px,
+        });
+    }
+    Ok(cal)
+}
+
+/// Most fits of the outlier test.
+const MAX_REJECTION_ROUNDS: usize = 8;
+/// The 99.9% point of chi-square with 4 degrees of freedom (a sample's two
+/// pixels): a sample of pure noise exceeds it once in a thousand.
+const CHI2_4_999: f64 = 18.467;
+/// The median of chi-square with 4 degrees of freedom.
+const CHI2_4_MEDIAN: f64 = 3.357;
+/// Smallest noise scale the outlier test assumes, px: noiseless samples
+/// are all consistent.
+const MIN_NOISE_PX: f64 = 1e-3;
+
+/// Each sample's squared reprojection error under `cal`, px^2 (both
+/// cameras); infinite where the model point does not project.
+fn squared_errors(rig: &Rig, obs: &[Observation], cal: &Calibration) -> Vec<f64> {
+    obs.iter()
+        .map(|o| {
+            let point = match (&cal.joint_offsets, &rig.arm, &o.joints) {
+                (Some(offsets), Some(arm), Some(q)) => arm.end_effector(q, offsets).ok(),
+                _ => Some(o.model_point),
+            };
+            let error = |k: usize| {
+                let p = point?;
+                Some((cal.mirror_cameras[k].project(&p).ok()? - o.pixels[k]).norm_squared())
+            };
+            match (error(0), error(1)) {
+                (Some(a), Some(b)) if (a + b).is_finite() => a + b,
+                _ => f64::INFINITY,
+            }
+        })
+        .collect()
+}
+
+/// Which samples are consistent with the noise the samples show.
+fn consistent(errors: &[f64]) -> Vec<bool> {
+    let mut sorted = errors.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let sigma_squared = (median / CHI2_4_MEDIAN).max(MIN_NOISE_PX * MIN_NOISE_PX);
+    errors
+        .iter()
+        .map(|e| *e <= CHI2_4_999 * sigma_squared)
+        .collect()
+}
+
+/// One least-squares calibration of `obs` with `method`, checked.
+fn solve(rig: &Rig, obs: &[Observation], method: Method) -> Result<Calibration, CalibrateError> {
     // The J/Ĵ midplane: the joint methods start from it, and the paper's
     // per-camera planes are it in each camera's frame.
     let start = midplane(obs.iter().map(|o| (o.model_point, o.reflected_point)))?;
     check_plane_clear_of_cameras(rig, &start)?;
-    check_plane_not_edge_on(rig, &start, &obs)?;
+    check_plane_not_edge_on(rig, &start, obs)?;
     let cal = match method {
-        Method::Paper => paper::calibrate(rig, &obs)?,
-        Method::Joint => joint::calibrate(rig, &obs, start, false)?,
-        Method::JointKinematics => joint::calibrate(rig, &obs, start, true)?,
+        Method::Paper => paper::calibrate(rig, obs)?,
+        Method::Joint => joint::calibrate(rig, obs, start, false)?,
+        Method::JointKinematics => joint::calibrate(rig, obs, start, true)?,
     };
     let finite = cal.mirror_cameras.iter().all(|c| {
         c.camera_from_world
@@ -332,12 +451,7 @@ pub fn calibrate(
     }
     if let Some(plane) = &cal.plane {
         check_plane_clear_of_cameras(rig, plane)?;
-        check_plane_not_edge_on(rig, plane, &obs)?;
-    }
-    if cal.train_rms_px > MAX_TRAIN_RMS_PX {
-        return Err(CalibrateError::PoorFit {
-            rms_px: cal.train_rms_px,
-        });
+        check_plane_not_edge_on(rig, plane, obs)?;
     }
     Ok(cal)
 }

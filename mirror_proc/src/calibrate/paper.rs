@@ -144,5 +144,6 @@ pub(super) fn calibrate(rig: &Rig, obs: &[Observation]) -> Result<Calibration, C
         train_rms_px: rms_px(&all),
         samples: obs.len(),
         uncertainty,
+        rejected: Vec::new(),
     })
 }
