@@ -79,7 +79,8 @@ pub struct UncertaintyEntry {
     /// The plane offset `d`, mm.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub plane_distance_mm: Option<f64>,
-    /// Each encoder offset, deg (`null`: not determined).
+    /// Each encoder offset, deg (mm for a prismatic joint; `null`: not
+    /// determined).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub joint_offsets_deg: Option<Vec<Option<f64>>>,
     /// RMS error of each mirror camera's centre, mm, left then right.

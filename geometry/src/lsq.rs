@@ -76,6 +76,10 @@ where
 /// direction of the parameters counts as not determined by the data.
 const RANK_TOLERANCE: f64 = 1e-8;
 
+/// Share of a parameter (squared, of a unit step in it) lying in the null
+/// space above which it counts as not determined.
+const UNSEEN_SHARE: f64 = 1e-6;
+
 /// The uncertainty of a least-squares solution: the Gauss-Newton covariance
 /// `s^2 (J^T J)^-1`, with `s^2 = |r|^2 / (m - rank)` the residual variance,
 /// or a prior variance where the fit has no redundancy (`m = rank`).
@@ -89,8 +93,8 @@ pub struct Covariance {
     pub residual_variance: f64,
     /// Residuals beyond the determined parameters, `m - rank`.
     pub redundancy: usize,
-    /// Parameters the data do not determine: for each null direction of the
-    /// Jacobian, the parameter that dominates it.
+    /// Parameters the data do not determine: every parameter that takes
+    /// part in a null direction of the Jacobian.
     pub undetermined: Vec<usize>,
 }
 
@@ -125,14 +129,20 @@ pub fn covariance(
             .column_iter()
             .map(|c| if c.norm() > 0.0 { 1.0 / c.norm() } else { 1.0 }),
     );
-    let scaled = jacobian * DMatrix::from_diagonal(&scale);
+    // Padded to at least n rows so that the SVD has n directions: with
+    // fewer residuals than parameters the missing ones are null.
+    let mut scaled = DMatrix::zeros(m.max(n), n);
+    scaled
+        .view_mut((0, 0), (m, n))
+        .copy_from(&(jacobian * DMatrix::from_diagonal(&scale)));
     let svd = scaled.svd(false, true);
     let v_t = svd
         .v_t
         .ok_or(GeometryError::NonFinite("covariance decomposition"))?;
     let largest = svd.singular_values.max();
     let mut inverse = DMatrix::zeros(n, n);
-    let mut undetermined = Vec::new();
+    // How much of each parameter lies in the null space.
+    let mut unseen = DVector::<f64>::zeros(n);
     let mut rank = 0;
     for (k, &value) in svd.singular_values.iter().enumerate() {
         let direction = v_t.row(k).transpose();
@@ -140,12 +150,12 @@ pub fn covariance(
             rank += 1;
             inverse += &direction * direction.transpose() / (value * value);
         } else {
-            let i = direction.iamax();
-            if !undetermined.contains(&i) {
-                undetermined.push(i);
-            }
+            unseen += direction.map(|v| v * v);
         }
     }
+    // A parameter with any part in a null direction is not determined,
+    // and neither is whatever it trades off against.
+    let undetermined: Vec<usize> = (0..n).filter(|&i| unseen[i] > UNSEEN_SHARE).collect();
     let redundancy = m.saturating_sub(rank);
     let residual_variance = if redundancy == 0 {
         prior_variance
@@ -158,7 +168,6 @@ pub fn covariance(
         matrix.row_mut(i).fill(0.0);
         matrix.column_mut(i).fill(0.0);
     }
-    undetermined.sort_unstable();
     if !matrix.iter().all(|v| v.is_finite()) {
         return Err(GeometryError::NonFinite("parameter covariance"));
     }
@@ -310,6 +319,33 @@ mod tests {
         assert_eq!(cov.undetermined, vec![2]);
         assert_eq!(cov.sigma(2), None);
         assert!(cov.sigma(0).unwrap() > 0.0 && cov.sigma(1).unwrap() > 0.0);
+    }
+
+    #[test]
+    fn parameters_seen_only_together_are_both_undetermined() {
+        // Only p[0] + p[1] is seen; p[2] is well determined.
+        let residual_fn = |p: &DVector<f64>| {
+            Some(DVector::from_vec(vec![
+                p[0] + p[1] - 1.0,
+                2.0 * (p[0] + p[1]) - 2.1,
+                p[2] - 0.3,
+                p[2] - 0.32,
+            ]))
+        };
+        let p = DVector::from_vec(vec![0.5, 0.52, 0.31]);
+        let cov = covariance(
+            &jacobian(&p, residual_fn).unwrap(),
+            &residual_fn(&p).unwrap(),
+            1.0,
+        )
+        .unwrap();
+        assert_eq!(cov.undetermined, vec![0, 1]);
+        assert!(cov.sigma(2).unwrap() > 0.0);
+        // Fewer residuals than parameters: the rest are null directions.
+        let short = |p: &DVector<f64>| Some(DVector::from_vec(vec![p[0] - 1.0, p[1] - 2.0]));
+        let q = DVector::from_vec(vec![1.0, 2.0, 0.0]);
+        let cov = covariance(&jacobian(&q, short).unwrap(), &short(&q).unwrap(), 1.0).unwrap();
+        assert_eq!(cov.undetermined, vec![2]);
     }
 
     #[test]

@@ -289,7 +289,7 @@ impl Live {
         let mut out = Vec::new();
         let last = calibrations.last();
         if let Some(journaled) = last {
-            let used = (journaled.samples as usize).min(self.train.len());
+            let used = samples_considered(journaled).min(self.train.len());
             let train: Vec<Sample> = self.train[..used]
                 .iter()
                 .map(MirrorSample::to_sample)
@@ -308,7 +308,7 @@ impl Live {
                 }
             }
         }
-        let calibrated = last.map_or(0, |c| c.samples as usize);
+        let calibrated = last.map_or(0, samples_considered);
         if self.train.len() > calibrated && self.train.len() >= self.config.min_train {
             let stamp = self.train.last().map_or(0, |s| s.stamp_ns);
             self.recalibrate(stamp, &mut out);
@@ -688,12 +688,15 @@ impl Live {
             let refs = [&cal.mirror_cameras[0], &cal.mirror_cameras[1]];
             if let Ok(p) = triangulate(refs, [Vector2::from(m.center), Vector2::from(r.center)]) {
                 self.located.insert(m.id, p.into());
-                let c = cal
-                    .uncertainty
-                    .located_covariance(&cal.mirror_cameras, &p)
-                    .unwrap_or_else(Matrix3::zeros);
-                self.located_sigma_mm
-                    .insert(m.id, crate::calibrate::uncertainty::rms_error_mm(&c));
+                // Zero where it cannot be stated (as in a v1 recording).
+                let covariance = cal.uncertainty.located_covariance(&cal.mirror_cameras, &p);
+                match &covariance {
+                    Some(c) => self
+                        .located_sigma_mm
+                        .insert(m.id, crate::calibrate::uncertainty::rms_error_mm(c)),
+                    None => self.located_sigma_mm.remove(&m.id),
+                };
+                let c = covariance.unwrap_or_else(Matrix3::zeros);
                 out.push(Output::Located(LocatedObject {
                     stamp_ns: d.stamp_ns,
                     revision: self.revision,
@@ -753,7 +756,7 @@ fn uncertainty_msg(cal: &Calibration) -> CalibrationUncertainty {
         (Some(_), sigma) => sigma.unwrap_or(UNDETERMINED),
     };
     let mut msg = CalibrationUncertainty {
-        stated: 1,
+        stated: u32::from(u.stated),
         rejected_samples: cal.rejected.len() as u32,
         residual_px: u.residual_px,
         plane_angle_deg: plane_sigma(u.plane_angle_deg),
@@ -769,4 +772,10 @@ fn uncertainty_msg(cal: &Calibration) -> CalibrationUncertainty {
         }
     }
     msg
+}
+
+/// The training samples a calibration was computed from: those it kept and
+/// those its outlier test set aside (the first ones of the stage's list).
+fn samples_considered(c: &CalibrationMsg) -> usize {
+    c.samples as usize + c.uncertainty.rejected_samples as usize
 }

@@ -8,7 +8,13 @@ use mirror_proc::live::{Live, LiveConfig, Output};
 /// Joint states at 100 Hz (move 100 ms, dwell 200 ms per pose) and
 /// detections at 30 Hz whose marker centres come from the simulator.
 fn streams() -> (Vec<JointState>, Vec<StereoDetections>, usize) {
-    let data = generate(
+    streams_with(None)
+}
+
+/// The streams, with training pose `wrong.0` read as pose `wrong.1` was
+/// (a wrong pairing, which the calibration sets aside).
+fn streams_with(wrong: Option<(usize, usize)>) -> (Vec<JointState>, Vec<StereoDetections>, usize) {
+    let mut data = generate(
         &nico_scene(),
         0,
         &nico_noise(),
@@ -20,6 +26,10 @@ fn streams() -> (Vec<JointState>, Vec<StereoDetections>, usize) {
         9,
     )
     .unwrap();
+    if let Some((victim, donor)) = wrong {
+        data.train[victim].joints = data.train[donor].joints.clone();
+        data.train[victim].model_point = data.train[donor].model_point;
+    }
     let poses: Vec<_> = data
         .train
         .iter()
@@ -442,10 +452,11 @@ fn bad_geometry_is_reported_and_nothing_is_published() {
 /// A stage killed at some point and resumed from what it had journaled
 /// (its samples and calibrations up to then) goes on as if nothing had
 /// happened: the calibration it recomputes is the journaled one, bit for
-/// bit, and its final calibration is the uninterrupted run's.
+/// bit, and its final calibration is the uninterrupted run's. One training
+/// sample is a wrong pairing, so the calibrations set one aside.
 #[test]
 fn a_stage_resumed_from_its_journal_ends_with_the_uninterrupted_calibration() {
-    let (joints, detections, _) = streams();
+    let (joints, detections, _) = streams_with(Some((1, 6)));
     let order = by_stamp(&joints, &detections);
     let (whole, live) = run(&order, &joints, &detections);
     let last = |out: &[Output]| {
@@ -458,7 +469,9 @@ fn a_stage_resumed_from_its_journal_ends_with_the_uninterrupted_calibration() {
             .expect("a calibration")
     };
     let final_calibration = last(&whole);
+    assert_eq!(final_calibration.uncertainty.rejected_samples, 1);
     let final_file = live.report().calibration;
+    assert_eq!(final_file.as_ref().unwrap().rejected_samples[0].pose, 1);
     let calibrations = |out: &[Output]| {
         out.iter()
             .filter(|o| matches!(o, Output::Calibration(_)))

@@ -22,9 +22,9 @@ LOSSLESS = {
     "detections": "mirror.StereoDetections.v2",
     "joint_state": "mirror.JointState.v1",
     "samples": "mirror.MirrorSample.v1",
-    "calibration": "mirror.Calibration.v1",
+    "calibration": "mirror.Calibration.v2",
     "predictions": "mirror.Prediction.v1",
-    "located": "mirror.LocatedObject.v1",
+    "located": "mirror.LocatedObject.v2",
     "joint_positions": "mirror.JointPositions.v1",
     "pose_goal": "mirror.PoseGoal.v1",
 }

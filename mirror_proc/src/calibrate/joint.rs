@@ -99,7 +99,9 @@ pub(super) fn calibrate(
     };
     let joint_offsets: Option<Vec<f64>> =
         with_kinematics.then(|| (0..dof).map(|j| x[3 + j]).collect());
-    let uncertainty = uncertainty(rig, obs, &plane, joint_offsets.as_deref(), dof)?;
+    // A fit whose covariance cannot be formed is still a fit: it says so.
+    let uncertainty = uncertainty(rig, obs, &plane, joint_offsets.as_deref(), dof)
+        .unwrap_or_else(|e| Uncertainty::not_stated(&e.to_string()));
     Ok(Calibration {
         method: if with_kinematics {
             Method::JointKinematics
@@ -159,14 +161,22 @@ fn uncertainty(
     )
     .ok_or_else(undefined)?;
     let mut out = Uncertainty::from_cameras(cameras, cov.residual_variance);
+    out.cameras_stated = !cov.undetermined.iter().any(|&i| i < 3);
     if let (Some(a), Some(b)) = (cov.sigma(0), cov.sigma(1)) {
         out.plane_angle_deg = Some(a.hypot(b).to_degrees());
     }
     out.plane_distance_mm = cov.sigma(2);
     if offsets.is_some() {
+        // Revolute offsets in degrees; a prismatic joint's stays in mm.
+        let kinds = rig.arm.as_ref().map(geometry::Arm::joint_kinds);
         out.joint_offsets_deg = Some(
             (0..dof)
-                .map(|j| cov.sigma(3 + j).map(f64::to_degrees))
+                .map(|j| {
+                    let prismatic = kinds.as_ref().and_then(|k| k.get(j))
+                        == Some(&geometry::JointKind::Prismatic);
+                    cov.sigma(3 + j)
+                        .map(|v| if prismatic { v } else { v.to_degrees() })
+                })
                 .collect(),
         );
     }

@@ -349,7 +349,8 @@ pub fn calibrate(
     let mut kept = vec![true; obs.len()];
     for _ in 0..MAX_REJECTION_ROUNDS {
         let errors = squared_errors(rig, &obs, &cal);
-        let keep = consistent(&errors);
+        let fitted = kept.iter().filter(|k| **k).count();
+        let keep = consistent(&errors, 4 * fitted, parameters(rig, method));
         let count = keep.iter().filter(|k| **k).count();
         // Setting aside more than a third is not outliers but a model that
         // does not fit (judged below), and too few left cannot be solved.
@@ -362,7 +363,15 @@ pub fn calibrate(
             .filter(|(_, k)| **k)
             .map(|(o, _)| o.clone())
             .collect();
-        cal = solve(rig, &subset, method)?;
+        // A subset that cannot be solved (seen edge-on, say) leaves the
+        // last fit standing.
+        match solve(rig, &subset, method) {
+            Ok(refit) => cal = refit,
+            Err(e) => {
+                tracing::debug!("outlier test stopped: refitting the samples kept failed: {e}");
+                break;
+            }
+        }
         kept = keep;
     }
     let errors = squared_errors(rig, &obs, &cal);
@@ -416,12 +425,26 @@ fn squared_errors(rig: &Rig, obs: &[Observation], cal: &Calibration) -> Vec<f64>
         .collect()
 }
 
-/// Which samples are consistent with the noise the samples show.
-fn consistent(errors: &[f64]) -> Vec<bool> {
+/// Parameters `method` solves for.
+fn parameters(rig: &Rig, method: Method) -> usize {
+    match method {
+        Method::Paper => 12,
+        Method::Joint => 3,
+        Method::JointKinematics => 3 + rig.arm.as_ref().map_or(0, |a| a.dof()),
+    }
+}
+
+/// Which samples are consistent with the noise the samples show, from a fit
+/// of `parameters` to `residuals` coordinates: fitted residuals are smaller
+/// than the noise by `(m - p) / m` on average, which the scale undoes.
+fn consistent(errors: &[f64], residuals: usize, parameters: usize) -> Vec<bool> {
     let mut sorted = errors.to_vec();
     sorted.sort_by(f64::total_cmp);
-    let median = sorted[sorted.len() / 2];
-    let sigma_squared = (median / CHI2_4_MEDIAN).max(MIN_NOISE_PX * MIN_NOISE_PX);
+    let Some(&median) = sorted.get(sorted.len() / 2) else {
+        return Vec::new();
+    };
+    let shrink = residuals as f64 / residuals.saturating_sub(parameters).max(1) as f64;
+    let sigma_squared = (median / CHI2_4_MEDIAN * shrink).max(MIN_NOISE_PX * MIN_NOISE_PX);
     errors
         .iter()
         .map(|e| *e <= CHI2_4_999 * sigma_squared)

@@ -70,7 +70,8 @@ fn residuals(cam: &Camera, obs: &[Observation], k: usize) -> Option<DVector<f64>
 struct Refined {
     camera: Camera,
     residuals: DVector<f64>,
-    covariance: lsq::Covariance,
+    /// Its covariance, or why none could be formed.
+    covariance: Result<lsq::Covariance, GeometryError>,
 }
 
 /// Eq 13: 6-DOF refinement of one mirror camera on its reprojection error.
@@ -97,10 +98,12 @@ fn refine(start: &Camera, obs: &[Observation], k: usize) -> Result<Refined, Geom
     let r = residuals(&camera, obs, k).ok_or_else(undefined)?;
     // The covariance in a chart centred on the solution.
     let at = |d: &DVector<f64>| residuals(&perturb_camera(&camera, d.as_slice()), obs, k);
-    let jac = lsq::jacobian(&DVector::zeros(6), at).ok_or_else(undefined)?;
+    let covariance = lsq::jacobian(&DVector::zeros(6), at)
+        .ok_or_else(undefined)
+        .and_then(|jac| lsq::covariance(&jac, &r, super::PRIOR_PIXEL_SIGMA.powi(2)));
     Ok(Refined {
         camera,
-        covariance: lsq::covariance(&jac, &r, super::PRIOR_PIXEL_SIGMA.powi(2))?,
+        covariance,
         residuals: r,
     })
 }
@@ -112,29 +115,14 @@ pub(super) fn calibrate(rig: &Rig, obs: &[Observation]) -> Result<Calibration, C
     ];
     let left = refine(&initial[0], obs, 0)?;
     let right = refine(&initial[1], obs, 1)?;
+    let uncertainty = match (&left.covariance, &right.covariance) {
+        (Ok(l), Ok(r)) => uncertainty(rig, l, r),
+        (Err(e), _) | (_, Err(e)) => Uncertainty::not_stated(&e.to_string()),
+    };
     let all = DVector::from_iterator(
         left.residuals.len() + right.residuals.len(),
         left.residuals.iter().chain(right.residuals.iter()).copied(),
     );
-    // The two fits are independent: a block-diagonal covariance, and the
-    // pooled residual variance for the summary.
-    let mut cameras = CameraCovariance::zeros();
-    for (k, fit) in [&left, &right].into_iter().enumerate() {
-        for i in 0..6 {
-            for j in 0..6 {
-                cameras[(6 * k + i, 6 * k + j)] = fit.covariance.matrix[(i, j)];
-            }
-        }
-    }
-    let variance = 0.5 * (left.covariance.residual_variance + right.covariance.residual_variance);
-    let mut uncertainty = Uncertainty::from_cameras(cameras, variance);
-    for (fit, name) in [&left, &right].into_iter().zip(&rig.names) {
-        if !fit.covariance.undetermined.is_empty() {
-            uncertainty
-                .undetermined
-                .push(format!("the {name} mirror camera's pose"));
-        }
-    }
     Ok(Calibration {
         method: Method::Paper,
         plane: None,
@@ -146,4 +134,27 @@ pub(super) fn calibrate(rig: &Rig, obs: &[Observation]) -> Result<Calibration, C
         uncertainty,
         rejected: Vec::new(),
     })
+}
+
+/// The two independent fits' covariances as one block-diagonal one, with
+/// the pooled residual variance for the summary.
+fn uncertainty(rig: &Rig, left: &lsq::Covariance, right: &lsq::Covariance) -> Uncertainty {
+    let mut cameras = CameraCovariance::zeros();
+    for (k, fit) in [left, right].into_iter().enumerate() {
+        for i in 0..6 {
+            for j in 0..6 {
+                cameras[(6 * k + i, 6 * k + j)] = fit.matrix[(i, j)];
+            }
+        }
+    }
+    let variance = 0.5 * (left.residual_variance + right.residual_variance);
+    let mut out = Uncertainty::from_cameras(cameras, variance);
+    for (fit, name) in [left, right].into_iter().zip(&rig.names) {
+        if !fit.undetermined.is_empty() {
+            out.undetermined
+                .push(format!("the {name} mirror camera's pose"));
+            out.cameras_stated = false;
+        }
+    }
+    out
 }

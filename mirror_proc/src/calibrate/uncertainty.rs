@@ -62,6 +62,9 @@ pub fn chart(base: &[Camera; 2], moved: &[Camera; 2]) -> CameraDelta {
 /// A calibration's stated uncertainty, each a 1-sigma value.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Uncertainty {
+    /// False when no covariance could be formed at all (then every sigma
+    /// is absent and `undetermined` says why).
+    pub stated: bool,
     /// The fit's residual standard deviation per pixel coordinate, px: the
     /// tracker's noise as the fit sees it.
     pub residual_px: f64,
@@ -80,8 +83,12 @@ pub struct Uncertainty {
     pub mirror_camera_angles_deg: [f64; 2],
     /// What the samples do not determine, named.
     pub undetermined: Vec<String>,
-    /// Both mirror cameras' covariance in the chart of this module.
+    /// Both mirror cameras' covariance in the chart of this module;
+    /// meaningful only if `cameras_stated`.
     pub cameras: CameraCovariance,
+    /// Whether the mirror cameras' covariance is stated: false when what
+    /// they depend on is not determined, or no covariance could be formed.
+    pub cameras_stated: bool,
 }
 
 impl Uncertainty {
@@ -95,6 +102,7 @@ impl Uncertainty {
                 .sqrt()
         };
         Self {
+            stated: true,
             residual_px: residual_variance.max(0.0).sqrt(),
             plane_angle_deg: None,
             plane_distance_mm: None,
@@ -103,6 +111,24 @@ impl Uncertainty {
             mirror_camera_angles_deg: [rms(0).to_degrees(), rms(6).to_degrees()],
             undetermined: Vec::new(),
             cameras,
+            cameras_stated: true,
+        }
+    }
+
+    /// No uncertainty could be formed, for `reason`: every sigma is absent
+    /// (the cameras' zero and not stated) and `undetermined` says why.
+    pub(crate) fn not_stated(reason: &str) -> Self {
+        Self {
+            stated: false,
+            residual_px: 0.0,
+            plane_angle_deg: None,
+            plane_distance_mm: None,
+            joint_offsets_deg: None,
+            mirror_camera_centers_mm: [0.0; 2],
+            mirror_camera_angles_deg: [0.0; 2],
+            undetermined: vec![format!("the uncertainty: {reason}")],
+            cameras: CameraCovariance::zeros(),
+            cameras_stated: false,
         }
     }
 
@@ -122,12 +148,15 @@ impl Uncertainty {
     /// The covariance (mm^2) of a point triangulated through `cameras` from
     /// `pixels`, each detected with this fit's pixel noise: the pixels' part
     /// and the cameras' part, linearised at `point`. `None` where a
-    /// projection is undefined.
+    /// projection is undefined or the cameras' covariance is not stated.
     pub fn located_covariance(
         &self,
         cameras: &[Camera; 2],
         point: &Vector3<f64>,
     ) -> Option<Matrix3<f64>> {
+        if !self.cameras_stated {
+            return None;
+        }
         // A: d pixels / d point (4x3); B: d pixels / d cameras (4x12).
         let project = |cams: &[Camera; 2], p: &Vector3<f64>| -> Option<SVector<f64, 4>> {
             let (l, r) = (cams[0].project(p).ok()?, cams[1].project(p).ok()?);
