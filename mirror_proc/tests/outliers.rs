@@ -7,7 +7,7 @@
 
 use geometry::Sample;
 use geometry::sim::{Counts, NoiseModel, generate, nico_noise, nico_scene};
-use mirror_proc::calibrate::{Method, calibrate};
+use mirror_proc::calibrate::{CalibrateOptions, Method, calibrate, calibrate_with};
 use mirror_proc::evaluate::evaluate;
 
 const TRAIN: usize = 40;
@@ -28,6 +28,7 @@ fn mispaired(train: &[Sample], picked: &[usize]) -> Vec<Sample> {
 fn run(method: Method, noise: &NoiseModel) {
     let (mut wrong_rejected, mut wrong_total) = (0, 0);
     let (mut clean_error, mut robust_error) = (0.0, 0.0);
+    let (mut naive_ratio, mut naive_runs, mut refused) = (0.0, 0, 0);
     for mirror in 0..3 {
         for seed in 0..SEEDS {
             let counts = Counts {
@@ -43,6 +44,11 @@ fn run(method: Method, noise: &NoiseModel) {
             let corrupted = mispaired(&d.train, &picked);
             let clean = calibrate(&d.rig, &d.train, method).unwrap();
             let robust = calibrate(&d.rig, &corrupted, method).unwrap();
+            let keep_all = CalibrateOptions {
+                set_aside_outliers: false,
+                ..CalibrateOptions::default()
+            };
+            let naive = calibrate_with(&d.rig, &corrupted, method, keep_all);
             let rejected: Vec<u64> = robust.rejected.iter().map(|r| r.pose).collect();
             let wrong: Vec<u64> = picked.iter().map(|&k| d.train[k].pose).collect();
             let right_rejected = rejected.iter().filter(|p| !wrong.contains(p)).count();
@@ -65,14 +71,27 @@ fn run(method: Method, noise: &NoiseModel) {
                 .mirror_3d_mm
                 .unwrap()
             };
-            clean_error += error(&clean);
+            let clean_run = error(&clean);
+            clean_error += clean_run;
             robust_error += error(&robust);
+            // Without the test every sample is kept (or the fit refused as
+            // too poor): what one wrong pairing in seven costs.
+            match naive {
+                Ok(naive) => {
+                    assert!(naive.rejected.is_empty());
+                    naive_ratio += error(&naive) / clean_run;
+                    naive_runs += 1;
+                }
+                Err(_) => refused += 1,
+            }
         }
     }
     let ratio = robust_error / clean_error;
     println!(
         "{method}: {wrong_rejected} of {wrong_total} wrong pairings rejected; \
-         test mirror 3D error {ratio:.3}x the clean runs'"
+         test mirror 3D error {ratio:.3}x the clean runs'; keeping them all, \
+         {refused} runs refused as too poor and the others {:.2}x their clean run's",
+        naive_ratio / f64::from(naive_runs.max(1))
     );
     assert!(
         wrong_rejected * 10 >= wrong_total * 9,

@@ -77,6 +77,7 @@ pub(super) fn calibrate(
     obs: &[Observation],
     start: Plane,
     with_kinematics: bool,
+    with_uncertainty: bool,
 ) -> Result<Calibration, CalibrateError> {
     let dof = if with_kinematics {
         rig.arm.as_ref().map_or(0, |a| a.dof())
@@ -100,8 +101,12 @@ pub(super) fn calibrate(
     let joint_offsets: Option<Vec<f64>> =
         with_kinematics.then(|| (0..dof).map(|j| x[3 + j]).collect());
     // A fit whose covariance cannot be formed is still a fit: it says so.
-    let uncertainty = uncertainty(rig, obs, &plane, joint_offsets.as_deref(), dof)
-        .unwrap_or_else(|e| Uncertainty::not_stated(&e.to_string()));
+    let uncertainty = if with_uncertainty {
+        uncertainty(rig, obs, &plane, joint_offsets.as_deref(), dof)
+            .unwrap_or_else(|e| Uncertainty::not_stated(&e.to_string()))
+    } else {
+        Uncertainty::not_stated("not asked for")
+    };
     Ok(Calibration {
         method: if with_kinematics {
             Method::JointKinematics

@@ -328,6 +328,34 @@ pub(crate) fn rms_px(residuals: &nalgebra::DVector<f64>) -> f64 {
     (residuals.norm_squared() / (residuals.len() as f64 / 2.0)).sqrt()
 }
 
+/// What [`calibrate_with`] does beyond one least-squares fit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CalibrateOptions {
+    /// State the uncertainty (the covariance at the solution).
+    pub uncertainty: bool,
+    /// Find and set aside samples that do not fit the others.
+    pub set_aside_outliers: bool,
+}
+
+impl Default for CalibrateOptions {
+    fn default() -> Self {
+        Self {
+            uncertainty: true,
+            set_aside_outliers: true,
+        }
+    }
+}
+
+/// Calibrates the mirror cameras from `samples` (mirror views) with
+/// `method`, stating the uncertainty and setting outliers aside.
+pub fn calibrate(
+    rig: &Rig,
+    samples: &[Sample],
+    method: Method,
+) -> Result<Calibration, CalibrateError> {
+    calibrate_with(rig, samples, method, CalibrateOptions::default())
+}
+
 /// Calibrates the mirror cameras from `samples` (mirror views) with `method`.
 ///
 /// Samples that do not fit the others are found and set aside: after a
@@ -339,15 +367,22 @@ pub(crate) fn rms_px(residuals: &nalgebra::DVector<f64>) -> f64 {
 /// judged again against each new fit, so one set aside by a fit that the
 /// outliers had pulled comes back. The final calibration is a plain
 /// least-squares fit on the samples kept.
-pub fn calibrate(
+pub fn calibrate_with(
     rig: &Rig,
     samples: &[Sample],
     method: Method,
+    options: CalibrateOptions,
 ) -> Result<Calibration, CalibrateError> {
     let obs = prepare(rig, samples, method == Method::JointKinematics)?;
-    let mut cal = solve(rig, &obs, method)?;
+    let solve = |obs: &[Observation]| solve(rig, obs, method, options.uncertainty);
+    let mut cal = solve(&obs)?;
     let mut kept = vec![true; obs.len()];
-    for _ in 0..MAX_REJECTION_ROUNDS {
+    let rounds = if options.set_aside_outliers {
+        MAX_REJECTION_ROUNDS
+    } else {
+        0
+    };
+    for _ in 0..rounds {
         let errors = squared_errors(rig, &obs, &cal);
         let fitted = kept.iter().filter(|k| **k).count();
         let keep = consistent(&errors, 4 * fitted, parameters(rig, method));
@@ -365,7 +400,7 @@ pub fn calibrate(
             .collect();
         // A subset that cannot be solved (seen edge-on, say) leaves the
         // last fit standing.
-        match solve(rig, &subset, method) {
+        match solve(&subset) {
             Ok(refit) => cal = refit,
             Err(e) => {
                 tracing::debug!("outlier test stopped: refitting the samples kept failed: {e}");
@@ -452,16 +487,21 @@ fn consistent(errors: &[f64], residuals: usize, parameters: usize) -> Vec<bool> 
 }
 
 /// One least-squares calibration of `obs` with `method`, checked.
-fn solve(rig: &Rig, obs: &[Observation], method: Method) -> Result<Calibration, CalibrateError> {
+fn solve(
+    rig: &Rig,
+    obs: &[Observation],
+    method: Method,
+    with_uncertainty: bool,
+) -> Result<Calibration, CalibrateError> {
     // The J/Ĵ midplane: the joint methods start from it, and the paper's
     // per-camera planes are it in each camera's frame.
     let start = midplane(obs.iter().map(|o| (o.model_point, o.reflected_point)))?;
     check_plane_clear_of_cameras(rig, &start)?;
     check_plane_not_edge_on(rig, &start, obs)?;
     let cal = match method {
-        Method::Paper => paper::calibrate(rig, obs)?,
-        Method::Joint => joint::calibrate(rig, obs, start, false)?,
-        Method::JointKinematics => joint::calibrate(rig, obs, start, true)?,
+        Method::Paper => paper::calibrate(rig, obs, with_uncertainty)?,
+        Method::Joint => joint::calibrate(rig, obs, start, false, with_uncertainty)?,
+        Method::JointKinematics => joint::calibrate(rig, obs, start, true, with_uncertainty)?,
     };
     let finite = cal.mirror_cameras.iter().all(|c| {
         c.camera_from_world

@@ -75,7 +75,12 @@ struct Refined {
 }
 
 /// Eq 13: 6-DOF refinement of one mirror camera on its reprojection error.
-fn refine(start: &Camera, obs: &[Observation], k: usize) -> Result<Refined, GeometryError> {
+fn refine(
+    start: &Camera,
+    obs: &[Observation],
+    k: usize,
+    with_uncertainty: bool,
+) -> Result<Refined, GeometryError> {
     let camera_at = |x: &DVector<f64>| {
         let turn = Rotation3::new(Vector3::new(x[0], x[1], x[2]));
         Camera::new(
@@ -98,9 +103,13 @@ fn refine(start: &Camera, obs: &[Observation], k: usize) -> Result<Refined, Geom
     let r = residuals(&camera, obs, k).ok_or_else(undefined)?;
     // The covariance in a chart centred on the solution.
     let at = |d: &DVector<f64>| residuals(&perturb_camera(&camera, d.as_slice()), obs, k);
-    let covariance = lsq::jacobian(&DVector::zeros(6), at)
-        .ok_or_else(undefined)
-        .and_then(|jac| lsq::covariance(&jac, &r, super::PRIOR_PIXEL_SIGMA.powi(2)));
+    let covariance = if with_uncertainty {
+        lsq::jacobian(&DVector::zeros(6), at)
+            .ok_or_else(undefined)
+            .and_then(|jac| lsq::covariance(&jac, &r, super::PRIOR_PIXEL_SIGMA.powi(2)))
+    } else {
+        Err(GeometryError::Degenerate("not asked for".into()))
+    };
     Ok(Refined {
         camera,
         covariance,
@@ -108,13 +117,17 @@ fn refine(start: &Camera, obs: &[Observation], k: usize) -> Result<Refined, Geom
     })
 }
 
-pub(super) fn calibrate(rig: &Rig, obs: &[Observation]) -> Result<Calibration, CalibrateError> {
+pub(super) fn calibrate(
+    rig: &Rig,
+    obs: &[Observation],
+    with_uncertainty: bool,
+) -> Result<Calibration, CalibrateError> {
     let initial = [
         initial_camera(&rig.cameras[0], obs)?,
         initial_camera(&rig.cameras[1], obs)?,
     ];
-    let left = refine(&initial[0], obs, 0)?;
-    let right = refine(&initial[1], obs, 1)?;
+    let left = refine(&initial[0], obs, 0, with_uncertainty)?;
+    let right = refine(&initial[1], obs, 1, with_uncertainty)?;
     let uncertainty = match (&left.covariance, &right.covariance) {
         (Ok(l), Ok(r)) => uncertainty(rig, l, r),
         (Err(e), _) | (_, Err(e)) => Uncertainty::not_stated(&e.to_string()),
