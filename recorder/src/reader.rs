@@ -382,14 +382,13 @@ impl Recording {
                         break;
                     };
                     if let Some(raw) = raw.as_mut() {
-                        match topic {
-                            Some((t, Some(size))) if data.len() == *size => {
-                                let mut upgraded = data.to_vec();
-                                upgraded.resize(t.layout().size, 0);
-                                raw(name, header.log_time, &upgraded);
-                            }
-                            _ => raw(name, header.log_time, &data),
-                        }
+                        let upgraded = match topic {
+                            Some((t, Some(size))) => Message::decode_legacy(*t, &data, *size)
+                                .ok()
+                                .map(|m| m.to_bytes()),
+                            _ => None,
+                        };
+                        raw(name, header.log_time, upgraded.as_deref().unwrap_or(&data));
                     }
                     let Some((topic, legacy)) = *topic else {
                         other += 1;

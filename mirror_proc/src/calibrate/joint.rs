@@ -6,7 +6,7 @@
 //! and projected through each real camera, against the detections; the same
 //! as projecting it through the mirror cameras the plane implies.
 
-use geometry::{GeometryError, Plane, Rig, lsq};
+use geometry::{Camera, GeometryError, Plane, Rig, lsq};
 use nalgebra::{DVector, Vector3};
 
 use super::uncertainty::{Uncertainty, chart, propagate_to_cameras};
@@ -92,17 +92,11 @@ pub(super) fn calibrate(
     check_plane_clear_of_cameras(rig, &plane)?;
     let r = residuals(rig, obs, &start_chart, dof, &x)
         .ok_or(GeometryError::NonFinite("joint refinement residuals"))?;
-    let mirror = |p: &Plane| {
-        [
-            p.mirror_camera(&rig.cameras[0]),
-            p.mirror_camera(&rig.cameras[1]),
-        ]
-    };
     let joint_offsets: Option<Vec<f64>> =
         with_kinematics.then(|| (0..dof).map(|j| x[3 + j]).collect());
     // A fit whose covariance cannot be formed is still a fit: it says so.
     let uncertainty = if with_uncertainty {
-        uncertainty(rig, obs, &plane, joint_offsets.as_deref(), dof)
+        uncertainty(rig, obs, &plane, joint_offsets.as_deref(), dof, &r)
             .unwrap_or_else(|e| Uncertainty::not_stated(&e.to_string()))
     } else {
         Uncertainty::not_stated("not asked for")
@@ -114,9 +108,9 @@ pub(super) fn calibrate(
             Method::Joint
         },
         plane: Some(plane),
-        mirror_cameras: mirror(&plane),
+        mirror_cameras: mirror_cameras(rig, &plane),
         joint_offsets,
-        initial_cameras: mirror(&start),
+        initial_cameras: mirror_cameras(rig, &start),
         train_rms_px: rms_px(&r),
         samples: obs.len(),
         uncertainty,
@@ -124,14 +118,21 @@ pub(super) fn calibrate(
     })
 }
 
+/// Both mirror cameras that `plane` makes of the rig's cameras.
+fn mirror_cameras(rig: &Rig, plane: &Plane) -> [Camera; 2] {
+    rig.cameras.map(|c| plane.mirror_camera(&c))
+}
+
 /// The covariance at the solution, in a chart centred on the solved normal
-/// so that the first two parameters are the normal's tilt in radians.
+/// so that the first two parameters are the normal's tilt in radians;
+/// `solved_residuals` are the fit's residuals there.
 fn uncertainty(
     rig: &Rig,
     obs: &[Observation],
     plane: &Plane,
     offsets: Option<&[f64]>,
     dof: usize,
+    solved_residuals: &DVector<f64>,
 ) -> Result<Uncertainty, CalibrateError> {
     let chart_here = PlaneChart::at(plane.normal.into_inner());
     let mut y = DVector::zeros(3 + dof);
@@ -142,26 +143,15 @@ fn uncertainty(
     let at = |y: &DVector<f64>| residuals(rig, obs, &chart_here, dof, y);
     let undefined = || GeometryError::NonFinite("the fit's Jacobian at the solution");
     let jac = lsq::jacobian(&y, at).ok_or_else(undefined)?;
-    let cov = lsq::covariance(
-        &jac,
-        &at(&y).ok_or_else(undefined)?,
-        super::PRIOR_PIXEL_SIGMA.powi(2),
-    )?;
-
-    let mirror = |p: &Plane| {
-        [
-            p.mirror_camera(&rig.cameras[0]),
-            p.mirror_camera(&rig.cameras[1]),
-        ]
-    };
-    let solved = mirror(plane);
+    let cov = lsq::covariance(&jac, solved_residuals, super::PRIOR_PIXEL_SIGMA.powi(2))?;
+    let solved = mirror_cameras(rig, plane);
     let cameras = propagate_to_cameras(
         &cov,
         &[0.0, 0.0, plane.distance],
         &[1e-6, 1e-6, 1e-6 * (1.0 + plane.distance.abs())],
         |p| {
             let moved = chart_here.plane(p).ok()?;
-            Some(chart(&solved, &mirror(&moved)))
+            Some(chart(&solved, &mirror_cameras(rig, &moved)))
         },
     )
     .ok_or_else(undefined)?;

@@ -124,14 +124,9 @@ pub struct Calibration {
     pub rejected: Vec<RejectedSample>,
 }
 
-/// A sample set aside by the outlier test.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RejectedSample {
-    /// Its pose id.
-    pub pose: u64,
-    /// Its RMS reprojection error over both cameras, px.
-    pub residual_px: f64,
-}
+/// A sample set aside by the outlier test: its pose id and its RMS
+/// reprojection error over both cameras, px (the file's entry as it is).
+pub use formats::calibration::RejectedEntry as RejectedSample;
 
 impl Calibration {
     /// The file form of this calibration.
@@ -147,15 +142,7 @@ impl Calibration {
         )
         .with_joint_names(rig)
         .with_uncertainty(self.uncertainty.to_file())
-        .with_rejected(
-            self.rejected
-                .iter()
-                .map(|r| formats::calibration::RejectedEntry {
-                    pose: r.pose,
-                    residual_px: r.residual_px,
-                })
-                .collect(),
-        )
+        .with_rejected(self.rejected.clone())
     }
 }
 
@@ -377,13 +364,14 @@ pub fn calibrate_with(
     let solve = |obs: &[Observation]| solve(rig, obs, method, options.uncertainty);
     let mut cal = solve(&obs)?;
     let mut kept = vec![true; obs.len()];
+    // Each sample's error under `cal`, kept current with it.
+    let mut errors = squared_errors(rig, &obs, &cal);
     let rounds = if options.set_aside_outliers {
         MAX_REJECTION_ROUNDS
     } else {
         0
     };
     for _ in 0..rounds {
-        let errors = squared_errors(rig, &obs, &cal);
         let fitted = kept.iter().filter(|k| **k).count();
         let keep = consistent(&errors, 4 * fitted, parameters(rig, method));
         let count = keep.iter().filter(|k| **k).count();
@@ -408,8 +396,8 @@ pub fn calibrate_with(
             }
         }
         kept = keep;
+        errors = squared_errors(rig, &obs, &cal);
     }
-    let errors = squared_errors(rig, &obs, &cal);
     cal.rejected = obs
         .iter()
         .zip(&kept)
