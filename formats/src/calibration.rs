@@ -92,6 +92,16 @@ pub struct UncertaintyEntry {
     pub undetermined: Vec<String>,
 }
 
+/// Whether a calibration's model explains its samples to the expected noise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FitVerdict {
+    /// The residuals are what the noise explains.
+    Good,
+    /// They are larger: the figures are not to be trusted.
+    Poor,
+}
+
 /// A sample the calibration set aside as not fitting the others.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RejectedEntry {
@@ -128,6 +138,13 @@ pub struct CalibrationFile {
     /// Samples set aside as not fitting the others.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub rejected_samples: Vec<RejectedEntry>,
+    /// Whether the samples kept fit the model to the expected noise;
+    /// absent when not judged.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fit: Option<FitVerdict>,
+    /// For a poor fit, its likely cause.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fit_cause: Option<String>,
 }
 
 impl CalibrationFile {
@@ -162,12 +179,23 @@ impl CalibrationFile {
             samples,
             uncertainty: None,
             rejected_samples: Vec::new(),
+            fit: None,
+            fit_cause: None,
         }
     }
 
     /// With the samples it set aside.
     pub fn with_rejected(mut self, rejected: Vec<RejectedEntry>) -> Self {
         self.rejected_samples = rejected;
+        self
+    }
+
+    /// With the verdict on its fit and, for a poor one, the likely cause.
+    pub fn with_fit(mut self, fit: Option<(FitVerdict, Option<String>)>) -> Self {
+        (self.fit, self.fit_cause) = match fit {
+            Some((verdict, cause)) => (Some(verdict), cause),
+            None => (None, None),
+        };
         self
     }
 

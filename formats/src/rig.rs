@@ -5,6 +5,8 @@
 //! file ([`crate::camera_file`]); its pose is always in the rig.
 //!
 //! ```toml
+//! pixel_sigma = 0.2               # optional: the detections' noise, px (1 sigma per coordinate)
+//!
 //! [[camera]]                      # first = left, second = right
 //! name = "left"
 //! width = 640
@@ -45,6 +47,9 @@ use crate::{
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RigFile {
+    /// The detections' noise, px per coordinate (1 sigma).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pixel_sigma: Option<f64>,
     camera: Vec<CameraEntry>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     arm: Option<ArmEntry>,
@@ -287,10 +292,20 @@ pub fn parse(path: &Path, text: &str) -> Result<Rig, FormatError> {
         cameras.push(Camera::new(intrinsics, r, Vector3::from(c.center)));
     }
     let arm = file.arm.as_ref().map(|a| parse_arm(path, a)).transpose()?;
+    if let Some(sigma) = file.pixel_sigma
+        && !(sigma.is_finite() && sigma > 0.0)
+    {
+        return Err(FormatError::at_key(
+            path,
+            "pixel_sigma",
+            format!("must be a positive number of pixels, found {sigma}"),
+        ));
+    }
     Ok(Rig {
         names: [file.camera[0].name.clone(), file.camera[1].name.clone()],
         cameras: [cameras[0], cameras[1]],
         arm,
+        pixel_sigma: file.pixel_sigma,
     })
 }
 
@@ -484,7 +499,12 @@ pub fn to_toml(rig: &Rig) -> String {
             joints,
         }
     });
-    toml::to_string(&RigFile { camera, arm }).expect("a rig always serialises")
+    toml::to_string(&RigFile {
+        pixel_sigma: rig.pixel_sigma,
+        camera,
+        arm,
+    })
+    .expect("a rig always serialises")
 }
 
 /// Writes a rig file.

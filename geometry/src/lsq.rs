@@ -123,11 +123,19 @@ pub fn covariance(
             residuals.len()
         )));
     }
+    // A column negligible next to the largest (the residuals do not move
+    // with that parameter; what is left is rounding) stays null rather than
+    // being scaled up into a direction of noise.
+    let largest_column = jacobian.column_iter().map(|c| c.norm()).fold(0.0, f64::max);
     let scale = DVector::from_iterator(
         n,
-        jacobian
-            .column_iter()
-            .map(|c| if c.norm() > 0.0 { 1.0 / c.norm() } else { 1.0 }),
+        jacobian.column_iter().map(|c| {
+            if c.norm() > RANK_TOLERANCE * largest_column {
+                1.0 / c.norm()
+            } else {
+                0.0
+            }
+        }),
     );
     // Padded to at least n rows so that the SVD has n directions: with
     // fewer residuals than parameters the missing ones are null.

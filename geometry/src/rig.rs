@@ -11,6 +11,9 @@ pub struct Rig {
     pub cameras: [Camera; 2],
     /// The arm's kinematic model, if the rig describes one.
     pub arm: Option<Arm>,
+    /// The detections' noise, px per coordinate (1 sigma), when the rig
+    /// states it: what a fit's residuals are judged against.
+    pub pixel_sigma: Option<f64>,
 }
 
 impl Rig {

@@ -40,10 +40,7 @@ fn bench(c: &mut Criterion) {
                 })
             },
         );
-        let plain = CalibrateOptions {
-            uncertainty: false,
-            set_aside_outliers: false,
-        };
+        let plain = CalibrateOptions::plain();
         for method in Method::ALL {
             group.bench_with_input(
                 BenchmarkId::new(format!("{method}, plain least squares"), n),

@@ -7,7 +7,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use geometry::sim::{self, Counts, NoiseModel};
 
-use mirror_proc::calibrate::{Method, calibrate};
+use mirror_proc::calibrate::{CalibrateOptions, Fit, Method, calibrate_with};
 use mirror_proc::evaluate::evaluate;
 use mirror_proc::experiment::{self, ExperimentConfig};
 use mirror_proc::plot;
@@ -37,6 +37,11 @@ enum Command {
         /// Where to write the calibration (JSON); stdout if absent.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// The detections' noise, px per coordinate (1 sigma), that the fit
+        /// is judged against [default: the rig's pixel_sigma, else 0.2, our
+        /// tracker's].
+        #[arg(long, value_name = "PX")]
+        pixel_sigma: Option<f64>,
     },
     /// Print the paper's error metrics (JSON) of a calibration on test samples.
     Evaluate {
@@ -199,12 +204,25 @@ fn run(cli: Cli) -> Result<()> {
             samples,
             method,
             out,
+            pixel_sigma,
         } => {
             let method: Method = method.parse().map_err(|e| anyhow!("--method: {e}"))?;
+            if let Some(sigma) = pixel_sigma
+                && !(sigma.is_finite() && sigma > 0.0)
+            {
+                bail!("--pixel-sigma: must be a positive number of pixels, found {sigma}");
+            }
             let rig_model = read_rig(&rig)?;
             let data = formats::samples::read(&samples, rig_model.arm.as_ref().map(|a| a.dof()))?;
-            let cal = calibrate(&rig_model, &data, method)
+            let options = CalibrateOptions {
+                pixel_sigma,
+                ..CalibrateOptions::default()
+            };
+            let cal = calibrate_with(&rig_model, &data, method, options)
                 .with_context(|| format!("{}", samples.display()))?;
+            if let Fit::Poor { cause } = &cal.fit {
+                eprintln!("mirror_proc: warning: poor fit: {cause}");
+            }
             let json = cal.to_file(&rig_model).to_json();
             match out {
                 Some(path) => std::fs::write(&path, json)

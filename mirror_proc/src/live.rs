@@ -27,7 +27,7 @@ use nalgebra::{Matrix3, Vector2};
 use runtime::Rejections;
 use serde::{Deserialize, Serialize};
 
-use crate::calibrate::{Calibration, Method, calibrate};
+use crate::calibrate::{Calibration, Fit, Method, calibrate};
 use crate::evaluate::evaluate;
 
 /// Settings of the live stage.
@@ -207,6 +207,9 @@ pub struct Live {
     located_sigma_mm: BTreeMap<u32, f64>,
     /// Poses whose rejection by the outlier test has been logged.
     rejections_logged: BTreeSet<u64>,
+    /// Whether the current run of poor fits has been logged (once, not per
+    /// revision).
+    poor_fit_logged: bool,
     last_error: Option<String>,
     counters: Counters,
     finished: bool,
@@ -243,6 +246,7 @@ impl Live {
             located: BTreeMap::new(),
             located_sigma_mm: BTreeMap::new(),
             rejections_logged: BTreeSet::new(),
+            poor_fit_logged: false,
             last_error: None,
             counters: Counters::default(),
             finished: false,
@@ -591,6 +595,14 @@ impl Live {
                             "sample set aside: it does not fit the others (a wrong pairing or a misread marker?)"
                         );
                     }
+                }
+                match &cal.fit {
+                    Fit::Poor { cause } if !self.poor_fit_logged => {
+                        tracing::warn!("poor fit: {cause}");
+                        self.poor_fit_logged = true;
+                    }
+                    Fit::Poor { .. } => {}
+                    _ => self.poor_fit_logged = false,
                 }
                 self.revision += 1;
                 self.last_error = None;

@@ -7,7 +7,7 @@
 
 use geometry::Sample;
 use geometry::sim::{Counts, NoiseModel, generate, nico_noise, nico_scene};
-use mirror_proc::calibrate::{CalibrateOptions, Method, calibrate, calibrate_with};
+use mirror_proc::calibrate::{CalibrateOptions, Fit, Method, calibrate, calibrate_with};
 use mirror_proc::evaluate::evaluate;
 
 const TRAIN: usize = 40;
@@ -28,7 +28,7 @@ fn mispaired(train: &[Sample], picked: &[usize]) -> Vec<Sample> {
 fn run(method: Method, noise: &NoiseModel) {
     let (mut wrong_rejected, mut wrong_total) = (0, 0);
     let (mut clean_error, mut robust_error) = (0.0, 0.0);
-    let (mut naive_ratio, mut naive_runs, mut refused) = (0.0, 0, 0);
+    let (mut naive_ratio, mut naive_runs, mut judged_poor) = (0.0, 0, 0);
     for mirror in 0..3 {
         for seed in 0..SEEDS {
             let counts = Counts {
@@ -74,23 +74,27 @@ fn run(method: Method, noise: &NoiseModel) {
             let clean_run = error(&clean);
             clean_error += clean_run;
             robust_error += error(&robust);
-            // Without the test every sample is kept (or the fit refused as
-            // too poor): what one wrong pairing in seven costs.
-            match naive {
-                Ok(naive) => {
-                    assert!(naive.rejected.is_empty());
-                    naive_ratio += error(&naive) / clean_run;
-                    naive_runs += 1;
-                }
-                Err(_) => refused += 1,
+            // Without the test every sample is kept: what one wrong pairing
+            // in seven costs, and whether the fit's judgement notices.
+            let naive = naive.unwrap();
+            assert!(naive.rejected.is_empty());
+            naive_ratio += error(&naive) / clean_run;
+            naive_runs += 1;
+            if matches!(naive.fit, Fit::Poor { .. }) {
+                judged_poor += 1;
             }
+            assert_eq!(
+                robust.fit,
+                Fit::Good,
+                "{method}, mirror {mirror}, seed {seed}: the robust fit"
+            );
         }
     }
     let ratio = robust_error / clean_error;
     println!(
         "{method}: {wrong_rejected} of {wrong_total} wrong pairings rejected; \
          test mirror 3D error {ratio:.3}x the clean runs'; keeping them all, \
-         {refused} runs refused as too poor and the others {:.2}x their clean run's",
+         {:.2}x their clean run's and {judged_poor} of {naive_runs} fits judged poor",
         naive_ratio / f64::from(naive_runs.max(1))
     );
     assert!(

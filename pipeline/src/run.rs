@@ -128,7 +128,14 @@ impl Run {
             .with_context(|| format!("{}: cannot create", dir.display()))?;
         let (data, plan) = plan_for(config, mirror)?;
         let rig = dir.join("rig.toml");
-        formats::rig::write(&rig, &data.rig)?;
+        // Live detections come from the tracker on renders, not from the
+        // simulator's drawn pixel noise: the rig states none, and the
+        // calibration judges against the tracker's own.
+        let live_rig = geometry::Rig {
+            pixel_sigma: None,
+            ..data.rig.clone()
+        };
+        formats::rig::write(&rig, &live_rig)?;
         let plan_path = dir.join("plan.csv");
         formats::plan::write(&plan_path, &plan)?;
         let report_path = dir.join("report.json");

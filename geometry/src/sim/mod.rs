@@ -228,6 +228,7 @@ pub fn nico_scene() -> Scene {
             names: ["left".into(), "right".into()],
             cameras,
             arm: Some(arm),
+            pixel_sigma: None,
         },
         mirrors,
     }
@@ -499,7 +500,11 @@ pub fn generate(
     let (test, test_points) = draw(counts.test, View::Mirror, 10_000, &mut rng)?;
     let (direct, direct_points) = draw(counts.direct, View::Direct, 20_000, &mut rng)?;
     Ok(Dataset {
-        rig: scene.rig.clone(),
+        // The detections carry the noise drawn here, and the rig says so.
+        rig: Rig {
+            pixel_sigma: (noise.pixel_sigma > 0.0).then_some(noise.pixel_sigma),
+            ..scene.rig.clone()
+        },
         train,
         test,
         direct,

@@ -77,7 +77,7 @@ pub(super) fn calibrate(
     obs: &[Observation],
     start: Plane,
     with_kinematics: bool,
-    with_uncertainty: bool,
+    prior_sigma: Option<f64>,
 ) -> Result<Calibration, CalibrateError> {
     let dof = if with_kinematics {
         rig.arm.as_ref().map_or(0, |a| a.dof())
@@ -95,9 +95,17 @@ pub(super) fn calibrate(
     let joint_offsets: Option<Vec<f64>> =
         with_kinematics.then(|| (0..dof).map(|j| x[3 + j]).collect());
     // A fit whose covariance cannot be formed is still a fit: it says so.
-    let uncertainty = if with_uncertainty {
-        uncertainty(rig, obs, &plane, joint_offsets.as_deref(), dof, &r)
-            .unwrap_or_else(|e| Uncertainty::not_stated(&e.to_string()))
+    let uncertainty = if let Some(prior_sigma) = prior_sigma {
+        uncertainty(
+            rig,
+            obs,
+            &plane,
+            joint_offsets.as_deref(),
+            dof,
+            &r,
+            prior_sigma,
+        )
+        .unwrap_or_else(|e| Uncertainty::not_stated(&e.to_string()))
     } else {
         Uncertainty::not_stated("not asked for")
     };
@@ -115,6 +123,7 @@ pub(super) fn calibrate(
         samples: obs.len(),
         uncertainty,
         rejected: Vec::new(),
+        fit: super::Fit::NotJudged,
     })
 }
 
@@ -125,7 +134,8 @@ fn mirror_cameras(rig: &Rig, plane: &Plane) -> [Camera; 2] {
 
 /// The covariance at the solution, in a chart centred on the solved normal
 /// so that the first two parameters are the normal's tilt in radians;
-/// `solved_residuals` are the fit's residuals there.
+/// `solved_residuals` are the fit's residuals there, and `prior_sigma` the
+/// pixel noise assumed where they have no redundancy to measure it.
 fn uncertainty(
     rig: &Rig,
     obs: &[Observation],
@@ -133,6 +143,7 @@ fn uncertainty(
     offsets: Option<&[f64]>,
     dof: usize,
     solved_residuals: &DVector<f64>,
+    prior_sigma: f64,
 ) -> Result<Uncertainty, CalibrateError> {
     let chart_here = PlaneChart::at(plane.normal.into_inner());
     let mut y = DVector::zeros(3 + dof);
@@ -143,7 +154,7 @@ fn uncertainty(
     let at = |y: &DVector<f64>| residuals(rig, obs, &chart_here, dof, y);
     let undefined = || GeometryError::NonFinite("the fit's Jacobian at the solution");
     let jac = lsq::jacobian(&y, at).ok_or_else(undefined)?;
-    let cov = lsq::covariance(&jac, solved_residuals, super::PRIOR_PIXEL_SIGMA.powi(2))?;
+    let cov = lsq::covariance(&jac, solved_residuals, prior_sigma.powi(2))?;
     let solved = mirror_cameras(rig, plane);
     let cameras = propagate_to_cameras(
         &cov,

@@ -79,7 +79,7 @@ fn refine(
     start: &Camera,
     obs: &[Observation],
     k: usize,
-    with_uncertainty: bool,
+    prior_sigma: Option<f64>,
 ) -> Result<Refined, GeometryError> {
     let camera_at = |x: &DVector<f64>| {
         let turn = Rotation3::new(Vector3::new(x[0], x[1], x[2]));
@@ -103,10 +103,10 @@ fn refine(
     let r = residuals(&camera, obs, k).ok_or_else(undefined)?;
     // The covariance in a chart centred on the solution.
     let at = |d: &DVector<f64>| residuals(&perturb_camera(&camera, d.as_slice()), obs, k);
-    let covariance = if with_uncertainty {
+    let covariance = if let Some(prior_sigma) = prior_sigma {
         lsq::jacobian(&DVector::zeros(6), at)
             .ok_or_else(undefined)
-            .and_then(|jac| lsq::covariance(&jac, &r, super::PRIOR_PIXEL_SIGMA.powi(2)))
+            .and_then(|jac| lsq::covariance(&jac, &r, prior_sigma.powi(2)))
     } else {
         Err(GeometryError::Degenerate("not asked for".into()))
     };
@@ -120,14 +120,14 @@ fn refine(
 pub(super) fn calibrate(
     rig: &Rig,
     obs: &[Observation],
-    with_uncertainty: bool,
+    prior_sigma: Option<f64>,
 ) -> Result<Calibration, CalibrateError> {
     let initial = [
         initial_camera(&rig.cameras[0], obs)?,
         initial_camera(&rig.cameras[1], obs)?,
     ];
-    let left = refine(&initial[0], obs, 0, with_uncertainty)?;
-    let right = refine(&initial[1], obs, 1, with_uncertainty)?;
+    let left = refine(&initial[0], obs, 0, prior_sigma)?;
+    let right = refine(&initial[1], obs, 1, prior_sigma)?;
     let uncertainty = match (&left.covariance, &right.covariance) {
         (Ok(l), Ok(r)) => uncertainty(rig, l, r),
         (Err(e), _) | (_, Err(e)) => Uncertainty::not_stated(&e.to_string()),
@@ -146,6 +146,7 @@ pub(super) fn calibrate(
         samples: obs.len(),
         uncertainty,
         rejected: Vec::new(),
+        fit: super::Fit::NotJudged,
     })
 }
 
