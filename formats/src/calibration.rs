@@ -41,7 +41,7 @@ use std::path::Path;
 use std::str::FromStr;
 
 use geometry::{Camera, Plane, Rig};
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::{
@@ -90,6 +90,39 @@ pub struct UncertaintyEntry {
     /// What the samples do not determine.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub undetermined: Vec<String>,
+    /// Each placement's plane, when calibrated across more than one (the
+    /// first is also `plane_angle_deg` and `plane_distance_mm`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub placements: Vec<PlaneSigmaEntry>,
+    /// RMS distance between the true and the estimated base origin, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base_translation_mm: Option<f64>,
+    /// RMS rotation angle between the true and the estimated base, deg.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base_rotation_deg: Option<f64>,
+    /// RMS distance between the true and the estimated tool point, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool_mm: Option<f64>,
+}
+
+/// One placement's plane sigmas.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlaneSigmaEntry {
+    /// RMS angle between the true and the estimated normal, deg.
+    pub plane_angle_deg: Option<f64>,
+    /// The plane offset `d`, mm.
+    pub plane_distance_mm: Option<f64>,
+}
+
+/// One mirror placement of a calibration across several.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlacementEntry {
+    /// Its mirror plane.
+    pub plane: PlaneEntry,
+    /// Its mirror-perspective cameras, left then right.
+    pub cameras: Vec<CameraPose>,
+    /// Its mirror samples used.
+    pub samples: usize,
 }
 
 /// Whether a calibration's model explains its samples to the expected noise.
@@ -109,6 +142,10 @@ pub struct RejectedEntry {
     pub pose: u64,
     /// Its RMS reprojection error over both cameras under the calibration, px.
     pub residual_px: f64,
+    /// The placement (index of the samples file) it came from, when
+    /// calibrated across more than one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub placement: Option<usize>,
 }
 
 /// A calibration as stored on disk.
@@ -145,6 +182,46 @@ pub struct CalibrationFile {
     /// For a poor fit, its likely cause.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fit_cause: Option<String>,
+    /// Direct-view samples used as constraints.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub direct_samples: usize,
+    /// Every placement, when calibrated across more than one; `plane` and
+    /// `cameras` are then the first's.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub placements: Vec<PlacementEntry>,
+    /// The arm's base placement, estimated: row-major 4x4, mm, as the
+    /// rig's `world_from_base`, which it replaces.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world_from_base: Option<[f64; 16]>,
+    /// The marker centre in the last link's frame, estimated, mm, as the
+    /// rig's `tool`, which it replaces.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool: Option<[f64; 3]>,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
+/// The file form of a plane.
+fn plane_entry(p: &Plane) -> PlaneEntry {
+    PlaneEntry {
+        normal: p.normal.into_inner().into(),
+        distance: p.distance,
+    }
+}
+
+/// The file form of a pair of mirror cameras.
+fn camera_poses(names: &[String; 2], cameras: &[Camera; 2]) -> Vec<CameraPose> {
+    cameras
+        .iter()
+        .zip(names)
+        .map(|(c, n)| CameraPose {
+            name: n.clone(),
+            camera_from_world: mat3_row_major(&c.camera_from_world),
+            center: c.center.into(),
+        })
+        .collect()
 }
 
 impl CalibrationFile {
@@ -160,19 +237,8 @@ impl CalibrationFile {
     ) -> Self {
         Self {
             method: method.to_string(),
-            plane: plane.map(|p| PlaneEntry {
-                normal: p.normal.into_inner().into(),
-                distance: p.distance,
-            }),
-            cameras: cameras
-                .iter()
-                .zip(names)
-                .map(|(c, n)| CameraPose {
-                    name: n.clone(),
-                    camera_from_world: mat3_row_major(&c.camera_from_world),
-                    center: c.center.into(),
-                })
-                .collect(),
+            plane: plane.map(plane_entry),
+            cameras: camera_poses(names, cameras),
             joint_offsets: joint_offsets.map(<[f64]>::to_vec),
             joint_names: None,
             train_rms_px,
@@ -181,7 +247,84 @@ impl CalibrationFile {
             rejected_samples: Vec::new(),
             fit: None,
             fit_cause: None,
+            direct_samples: 0,
+            placements: Vec::new(),
+            world_from_base: None,
+            tool: None,
         }
+    }
+
+    /// With every placement's plane, cameras and sample count, when there
+    /// is more than one (one placement is the top-level plane alone).
+    pub fn with_placements(
+        mut self,
+        names: &[String; 2],
+        placements: &[(Plane, [Camera; 2], usize)],
+    ) -> Self {
+        self.placements = if placements.len() > 1 {
+            placements
+                .iter()
+                .map(|(plane, cameras, samples)| PlacementEntry {
+                    plane: plane_entry(plane),
+                    cameras: camera_poses(names, cameras),
+                    samples: *samples,
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        self
+    }
+
+    /// With the arm's estimated base and tool, and the direct samples used.
+    pub fn with_arm_estimate(
+        mut self,
+        world_from_base: Option<&Isometry3<f64>>,
+        tool: Option<&Vector3<f64>>,
+        direct_samples: usize,
+    ) -> Self {
+        self.world_from_base = world_from_base.map(crate::pose_row_major);
+        self.tool = tool.map(|t| (*t).into());
+        self.direct_samples = direct_samples;
+        self
+    }
+
+    /// The rig with the calibration's estimated base and tool in its arm
+    /// (unchanged where the calibration estimated neither); `path` names
+    /// the calibration in errors.
+    pub fn corrected_rig(&self, path: &Path, rig: &Rig) -> Result<Rig, FormatError> {
+        let mut rig = rig.clone();
+        if let Some(arm) = rig.arm.as_mut() {
+            if let Some(m) = &self.world_from_base {
+                arm.world_from_base = crate::parse_pose(path, "world_from_base", m)?;
+            }
+            if let Some(t) = &self.tool {
+                arm.tool = Vector3::from(*t);
+            }
+        } else if self.world_from_base.is_some() || self.tool.is_some() {
+            return Err(FormatError::at_key(
+                path,
+                "world_from_base",
+                "the calibration estimated the arm's base or tool, but the rig has no [arm]",
+            ));
+        }
+        Ok(rig)
+    }
+
+    /// Placement `index`'s mirror cameras (0 is the top-level `cameras`),
+    /// with the intrinsics of the rig's real cameras; `None` past the last.
+    pub fn placement_cameras(&self, rig: &Rig, index: usize) -> Option<[Camera; 2]> {
+        if index == 0 {
+            return Some(self.mirror_cameras(rig));
+        }
+        let entry = self.placements.get(index)?;
+        Some(std::array::from_fn(|k| {
+            Camera::new(
+                rig.cameras[k].intrinsics,
+                mat3(&entry.cameras[k].camera_from_world),
+                Vector3::from(entry.cameras[k].center),
+            )
+        }))
     }
 
     /// With the samples it set aside.
@@ -319,6 +462,41 @@ pub fn parse(path: &Path, text: &str) -> Result<CalibrationFile, FormatError> {
                 "is not a unit vector",
             ));
         }
+    }
+    for (i, p) in cal.placements.iter().enumerate() {
+        if p.cameras.len() != 2 {
+            return Err(FormatError::at_key(
+                path,
+                format!("placements[{i}].cameras"),
+                format!("expected 2 cameras, found {}", p.cameras.len()),
+            ));
+        }
+        for (k, c) in p.cameras.iter().enumerate() {
+            let key = format!("placements[{i}].cameras[{k}]");
+            check_rotation(
+                path,
+                &format!("{key}.camera_from_world"),
+                &mat3(&c.camera_from_world),
+                true,
+            )?;
+            check_finite(path, &format!("{key}.center"), &c.center)?;
+        }
+        check_finite(
+            path,
+            &format!("placements[{i}].plane"),
+            &[
+                p.plane.normal[0],
+                p.plane.normal[1],
+                p.plane.normal[2],
+                p.plane.distance,
+            ],
+        )?;
+    }
+    if let Some(m) = &cal.world_from_base {
+        crate::parse_pose(path, "world_from_base", m)?;
+    }
+    if let Some(t) = &cal.tool {
+        check_finite(path, "tool", t)?;
     }
     if let Some(o) = &cal.joint_offsets {
         check_finite(path, "joint_offsets", o)?;

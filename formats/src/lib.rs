@@ -83,6 +83,39 @@ pub(crate) fn mat3(v: &[f64; 9]) -> nalgebra::Matrix3<f64> {
     nalgebra::Matrix3::from_row_slice(v)
 }
 
+/// 16 numbers, row-major, from a rigid transform (a rig's or a
+/// calibration's `world_from_base`).
+pub(crate) fn pose_row_major(pose: &nalgebra::Isometry3<f64>) -> [f64; 16] {
+    let m = pose.to_homogeneous();
+    std::array::from_fn(|i| m[(i / 4, i % 4)])
+}
+
+/// The rigid transform in 16 row-major numbers at `key` of `path`: finite,
+/// last row `0, 0, 0, 1`, a proper rotation.
+pub(crate) fn parse_pose(
+    path: &Path,
+    key: &str,
+    v: &[f64; 16],
+) -> Result<nalgebra::Isometry3<f64>, FormatError> {
+    check_finite(path, key, v)?;
+    let m = nalgebra::Matrix4::from_row_slice(v);
+    if (m.row(3) - nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0)).norm() > 1e-9 {
+        return Err(FormatError::at_key(
+            path,
+            key,
+            "last row must be [0, 0, 0, 1]",
+        ));
+    }
+    let r = m.fixed_view::<3, 3>(0, 0).into_owned();
+    check_rotation(path, key, &r, false)?;
+    Ok(nalgebra::Isometry3::from_parts(
+        nalgebra::Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
+        nalgebra::UnitQuaternion::from_rotation_matrix(
+            &nalgebra::Rotation3::from_matrix_unchecked(r),
+        ),
+    ))
+}
+
 /// 9 numbers, row-major, from a 3x3 matrix.
 pub(crate) fn mat3_row_major(m: &nalgebra::Matrix3<f64>) -> [f64; 9] {
     let mut out = [0.0; 9];

@@ -37,7 +37,7 @@
 use std::path::Path;
 
 use geometry::{Arm, ArmModel, Camera, DhJoint, Distortion, Intrinsics, Rig};
-use nalgebra::{Isometry3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::{
@@ -310,18 +310,8 @@ pub fn parse(path: &Path, text: &str) -> Result<Rig, FormatError> {
 }
 
 fn parse_arm(path: &Path, a: &ArmEntry) -> Result<Arm, FormatError> {
-    check_finite(path, "arm.world_from_base", &a.world_from_base)?;
+    let world_from_base = crate::parse_pose(path, "arm.world_from_base", &a.world_from_base)?;
     check_finite(path, "arm.tool", &a.tool)?;
-    let m = Matrix4::from_row_slice(&a.world_from_base);
-    if (m.row(3) - nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0)).norm() > 1e-9 {
-        return Err(FormatError::at_key(
-            path,
-            "arm.world_from_base",
-            "last row must be [0, 0, 0, 1]",
-        ));
-    }
-    let r = m.fixed_view::<3, 3>(0, 0).into_owned();
-    check_rotation(path, "arm.world_from_base", &r, false)?;
     let model = match (&a.urdf, &a.joints) {
         (Some(_), Some(_)) => {
             return Err(FormatError::at_key(
@@ -350,10 +340,7 @@ fn parse_arm(path: &Path, a: &ArmEntry) -> Result<Arm, FormatError> {
         }
     };
     Ok(Arm {
-        world_from_base: Isometry3::from_parts(
-            Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
-            UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)),
-        ),
+        world_from_base,
         model,
         tool: Vector3::from(a.tool),
     })
@@ -465,13 +452,7 @@ pub fn to_toml(rig: &Rig) -> String {
         .map(|(c, name)| CameraEntry::inline(name, c))
         .collect();
     let arm = rig.arm.as_ref().map(|a| {
-        let m = a.world_from_base.to_homogeneous();
-        let mut world_from_base = [0.0; 16];
-        for r in 0..4 {
-            for c in 0..4 {
-                world_from_base[4 * r + c] = m[(r, c)];
-            }
-        }
+        let world_from_base = crate::pose_row_major(&a.world_from_base);
         let (urdf, base_link, tip_link, joints) = match &a.model {
             ArmModel::Dh(rows) => (
                 None,

@@ -33,6 +33,7 @@ pub mod distortion;
 pub mod kinematics;
 pub mod lsq;
 pub mod plane;
+pub mod register;
 pub mod rig;
 pub mod sample;
 pub mod sim;

@@ -7,7 +7,9 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use geometry::sim::{self, Counts, NoiseModel};
 
-use mirror_proc::calibrate::{CalibrateOptions, Fit, Method, calibrate_with};
+use mirror_proc::calibrate::{
+    CalibrateError, CalibrateOptions, Estimate, Fit, Method, calibrate_placements,
+};
 use mirror_proc::evaluate::evaluate;
 use mirror_proc::experiment::{self, ExperimentConfig};
 use mirror_proc::plot;
@@ -28,9 +30,17 @@ enum Command {
         /// Rig file (TOML): cameras and arm.
         #[arg(long)]
         rig: PathBuf,
-        /// Training samples (CSV).
-        #[arg(long)]
-        samples: PathBuf,
+        /// Training samples (CSV). Give it once per mirror placement: one
+        /// plane each, the cameras and the arm shared. Direct-view rows
+        /// constrain the arm when it is modelled (joint+kinematics, or
+        /// --estimate).
+        #[arg(long, required = true)]
+        samples: Vec<PathBuf>,
+        /// Estimate the arm's base (world_from_base, 6 DOF) and/or tool (the
+        /// marker point, 3) too: base, tool or base,tool. The base needs
+        /// direct views or three placements.
+        #[arg(long, value_name = "LIST", default_value = "none")]
+        estimate: String,
         /// paper | joint | joint+kinematics (needs joint angles in the samples).
         #[arg(long, default_value = "joint+kinematics")]
         method: String,
@@ -54,6 +64,10 @@ enum Command {
         /// Test samples (CSV), mirror and/or direct views.
         #[arg(long)]
         samples: PathBuf,
+        /// For a calibration across several placements, the placement the
+        /// samples' mirror views are of (0 is the first --samples file).
+        #[arg(long, default_value_t = 0)]
+        placement: usize,
     },
     /// Write a simulated rig, training and test samples, and the ground truth.
     Simulate {
@@ -193,6 +207,24 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// A calibration error with the samples file it concerns named: the one
+/// file, or the placement's among several.
+fn name_samples_file(e: CalibrateError, files: &[PathBuf]) -> anyhow::Error {
+    match e {
+        CalibrateError::InPlacement { placement, source } => {
+            let file = files.get(placement).map_or_else(
+                || format!("placement {placement}"),
+                |f| f.display().to_string(),
+            );
+            anyhow!("{file}: {source}")
+        }
+        // Errors of the whole set (what cannot be estimated) name no file.
+        e @ CalibrateError::CannotEstimate { .. } => anyhow!(e),
+        e if files.len() == 1 => anyhow!("{}: {e}", files[0].display()),
+        e => anyhow!(e),
+    }
+}
+
 fn read_rig(path: &Path) -> Result<geometry::Rig> {
     Ok(formats::rig::read(path)?)
 }
@@ -202,24 +234,31 @@ fn run(cli: Cli) -> Result<()> {
         Command::Calibrate {
             rig,
             samples,
+            estimate,
             method,
             out,
             pixel_sigma,
         } => {
             let method: Method = method.parse().map_err(|e| anyhow!("--method: {e}"))?;
+            let estimate: Estimate = estimate.parse().map_err(|e| anyhow!("--estimate: {e}"))?;
             if let Some(sigma) = pixel_sigma
                 && !(sigma.is_finite() && sigma > 0.0)
             {
                 bail!("--pixel-sigma: must be a positive number of pixels, found {sigma}");
             }
             let rig_model = read_rig(&rig)?;
-            let data = formats::samples::read(&samples, rig_model.arm.as_ref().map(|a| a.dof()))?;
+            let dof = rig_model.arm.as_ref().map(|a| a.dof());
+            let data = samples
+                .iter()
+                .map(|path| formats::samples::read(path, dof))
+                .collect::<Result<Vec<_>, _>>()?;
+            let placements: Vec<&[geometry::Sample]> = data.iter().map(Vec::as_slice).collect();
             let options = CalibrateOptions {
                 pixel_sigma,
                 ..CalibrateOptions::default()
             };
-            let cal = calibrate_with(&rig_model, &data, method, options)
-                .with_context(|| format!("{}", samples.display()))?;
+            let cal = calibrate_placements(&rig_model, &placements, method, estimate, options)
+                .map_err(|e| name_samples_file(e, &samples))?;
             if let Fit::Poor { cause } = &cal.fit {
                 eprintln!("mirror_proc: warning: poor fit: {cause}");
             }
@@ -234,19 +273,26 @@ fn run(cli: Cli) -> Result<()> {
             rig,
             calibration,
             samples,
+            placement,
         } => {
             let rig_model = read_rig(&rig)?;
             let dof = rig_model.arm.as_ref().map(|a| a.dof());
             let cal = formats::calibration::read(&calibration)?;
             cal.check_arm(&calibration, &rig_model)?;
+            // The arm as calibrated: its estimated base and tool, if any.
+            let rig_model = cal.corrected_rig(&calibration, &rig_model)?;
+            let cameras = cal
+                .placement_cameras(&rig_model, placement)
+                .ok_or_else(|| {
+                    anyhow!(
+                        "--placement: {}: the calibration has {} placement(s)",
+                        placement,
+                        cal.placements.len().max(1)
+                    )
+                })?;
             let data = formats::samples::read(&samples, dof)?;
-            let errors = evaluate(
-                &rig_model,
-                &cal.mirror_cameras(&rig_model),
-                cal.nonzero_joint_offsets(),
-                &data,
-            )
-            .with_context(|| format!("{}", samples.display()))?;
+            let errors = evaluate(&rig_model, &cameras, cal.nonzero_joint_offsets(), &data)
+                .with_context(|| format!("{}", samples.display()))?;
             print!("{}", errors.summary().to_json());
         }
         Command::Simulate {

@@ -10,8 +10,9 @@
 //!   estimated joint offsets folded into the joint origins;
 //! - for any arm, `rig.corrected.toml`: the rig with the calibrated arm
 //!   (its DH table's `theta_offset`s corrected, or pointing at the
-//!   corrected URDF), which gives at `q` what the calibration gives at
-//!   `q + joint_offsets`.
+//!   corrected URDF; the estimated `world_from_base` and `tool`, if the
+//!   calibration has them), which gives at `q` what the calibration gives
+//!   at `q + joint_offsets`.
 
 use std::path::{Path, PathBuf};
 
@@ -56,6 +57,9 @@ pub fn export(rig_path: &Path, cal_path: &Path, out: &Path) -> Result<Vec<PathBu
     let rig = formats::rig::read(rig_path)?;
     let cal = formats::calibration::read(cal_path)?;
     cal.check_arm(cal_path, &rig)?;
+    // The arm's base and tool as calibrated, where the calibration
+    // estimated them: the corrected rig carries them.
+    let rig = cal.corrected_rig(cal_path, &rig)?;
     std::fs::create_dir_all(out).map_err(|source| ExportError::Io {
         path: out.to_path_buf(),
         what: "cannot create",

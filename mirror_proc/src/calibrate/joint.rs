@@ -1,17 +1,25 @@
-//! One mirror plane shared by both cameras, optionally with encoder offsets.
+//! Mirror planes shared by both cameras, optionally with encoder offsets and
+//! the arm's base and tool.
 //!
-//! Parameters: the plane's normal as a 2-D step in the tangent plane of the
-//! initial normal, its offset `d`, and (with kinematics) one offset per joint.
-//! Residuals: each sample's end-effector model point, reflected in the plane
-//! and projected through each real camera, against the detections; the same
-//! as projecting it through the mirror cameras the plane implies.
+//! Parameters ([`Layout`]): per mirror placement the plane's normal as a 2-D
+//! step in the tangent plane of its initial normal and its offset `d`; then
+//! (with kinematics) the encoder offsets; then (when estimated) a correction
+//! of the arm's base, `world_from_base * exp(w, t)` (rotation vector `w`,
+//! translation `t`, in the base's frame); then a shift of the tool point.
+//! Residuals: each mirror sample's end-effector point, reflected in its
+//! placement's plane and projected through each real camera, against the
+//! detections (the same as projecting it through the mirror cameras the
+//! plane implies); each direct sample's point projected as it is.
 
-use geometry::{Camera, GeometryError, Plane, Rig, lsq};
-use nalgebra::{DVector, Vector3};
+use std::borrow::Cow;
 
-use super::uncertainty::{Uncertainty, chart, propagate_to_cameras};
+use geometry::{Arm, Camera, GeometryError, Plane, Rig, View, lsq};
+use nalgebra::{DVector, Isometry3, Vector3};
+
+use super::uncertainty::{PlaneSigma, Uncertainty, chart, propagate_to_cameras};
 use super::{
-    CalibrateError, Calibration, Method, Observation, check_plane_clear_of_cameras, rms_px,
+    CalibrateError, Calibration, Estimate, Method, Observation, PlacementFit,
+    check_plane_clear_of_cameras, rms_px,
 };
 
 /// The plane's parameters: a step `(x0, x1)` in the tangent plane of `n0`
@@ -39,31 +47,176 @@ impl PlaneChart {
     }
 }
 
-/// The residuals of parameters `x` (plane in `chart`, then `dof` offsets):
-/// per sample and camera, the reflected model point's projection minus the
-/// detection.
+/// Where each estimated quantity sits in the parameter vector.
+pub(super) struct Layout {
+    /// Mirror placements, one plane each.
+    placements: usize,
+    /// The arm's joints.
+    dof: usize,
+    /// Whether encoder offsets are modelled at all.
+    kinematics: bool,
+    /// The joints whose offsets are estimated: all with kinematics, but
+    /// for the first when the base is estimated (a turn of the base about
+    /// the first joint's axis is that joint's offset) and the last when the
+    /// tool is (a turn of the last joint moves the tool point as a tool
+    /// shift does).
+    free_offsets: Vec<usize>,
+    estimate: Estimate,
+}
+
+impl Layout {
+    pub(super) fn new(rig: &Rig, placements: usize, kinematics: bool, estimate: Estimate) -> Self {
+        let dof = rig.arm.as_ref().map_or(0, Arm::dof);
+        let free_offsets = if kinematics {
+            (0..dof)
+                .filter(|&j| {
+                    let first_with_base = estimate.base && j == 0;
+                    let last_with_tool = estimate.tool && j + 1 == dof;
+                    !(first_with_base || last_with_tool)
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        Self {
+            placements,
+            dof,
+            kinematics,
+            free_offsets,
+            estimate,
+        }
+    }
+
+    /// Parameters in all.
+    pub(super) fn len(&self) -> usize {
+        self.tool_at() + if self.estimate.tool { 3 } else { 0 }
+    }
+
+    fn offsets_at(&self) -> usize {
+        3 * self.placements
+    }
+
+    fn base_at(&self) -> usize {
+        self.offsets_at() + self.free_offsets.len()
+    }
+
+    fn tool_at(&self) -> usize {
+        self.base_at() + if self.estimate.base { 6 } else { 0 }
+    }
+
+    /// Whether the end-effector point comes from the arm's forward
+    /// kinematics (else it is each sample's model point).
+    fn uses_arm(&self) -> bool {
+        !self.free_offsets.is_empty() || self.estimate.any()
+    }
+
+    /// Every joint's offset at `x` (zero where not estimated); empty
+    /// without kinematics.
+    fn offsets(&self, x: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; if self.kinematics { self.dof } else { 0 }];
+        for (i, &j) in self.free_offsets.iter().enumerate() {
+            out[j] = x[self.offsets_at() + i];
+        }
+        out
+    }
+
+    /// `arm` with the base and tool corrections of `x`.
+    fn arm_at<'a>(&self, arm: &'a Arm, x: &[f64]) -> Cow<'a, Arm> {
+        if !self.estimate.any() {
+            return Cow::Borrowed(arm);
+        }
+        let mut arm = arm.clone();
+        if self.estimate.base {
+            let b = self.base_at();
+            let w = Vector3::new(x[b], x[b + 1], x[b + 2]);
+            let t = Vector3::new(x[b + 3], x[b + 4], x[b + 5]);
+            arm.world_from_base *= Isometry3::new(t, w);
+        }
+        if self.estimate.tool {
+            let t = self.tool_at();
+            arm.tool += Vector3::new(x[t], x[t + 1], x[t + 2]);
+        }
+        Cow::Owned(arm)
+    }
+
+    /// What parameter `i` is, for a message.
+    fn name(&self, i: usize, rig: &Rig) -> String {
+        let placement = |p: usize| {
+            if self.placements > 1 {
+                format!(" (placement {p})")
+            } else {
+                String::new()
+            }
+        };
+        if i < self.offsets_at() {
+            let what = if i % 3 == 2 { "distance" } else { "tilt" };
+            return format!("the mirror's {what}{}", placement(i / 3));
+        }
+        if i < self.base_at() {
+            let j = self.free_offsets[i - self.offsets_at()];
+            let names = rig.arm.as_ref().map(Arm::joint_names).unwrap_or_default();
+            return format!(
+                "the encoder offset of {}",
+                names
+                    .get(j)
+                    .map_or_else(|| format!("joint {}", j + 1), Clone::clone)
+            );
+        }
+        if i < self.tool_at() {
+            return if i - self.base_at() < 3 {
+                "the arm's base rotation".into()
+            } else {
+                "the arm's base position".into()
+            };
+        }
+        "the tool (marker) position".into()
+    }
+
+    /// Whether parameter `i` is part of the base or the tool.
+    fn is_base_or_tool(&self, i: usize) -> bool {
+        i >= self.base_at()
+    }
+}
+
+/// The planes at `x`, one per placement.
+fn planes(charts: &[PlaneChart], x: &[f64]) -> Result<Vec<Plane>, GeometryError> {
+    charts
+        .iter()
+        .enumerate()
+        .map(|(p, c)| c.plane(&x[3 * p..3 * p + 3]))
+        .collect()
+}
+
+/// The residuals of parameters `x`: per sample and camera, the projection
+/// of the end-effector point (reflected in its placement's plane for a
+/// mirror view) minus the detection.
 fn residuals(
     rig: &Rig,
     obs: &[Observation],
-    chart: &PlaneChart,
-    dof: usize,
+    charts: &[PlaneChart],
+    layout: &Layout,
     x: &DVector<f64>,
 ) -> Option<DVector<f64>> {
-    let plane = chart.plane(x.as_slice()).ok()?;
-    let offsets: Vec<f64> = (0..dof).map(|j| x[3 + j]).collect();
+    let x = x.as_slice();
+    let planes = planes(charts, x).ok()?;
+    let offsets = layout.offsets(x);
+    let arm = if layout.uses_arm() {
+        Some(layout.arm_at(rig.arm.as_ref()?, x))
+    } else {
+        None
+    };
     let mut r = DVector::zeros(4 * obs.len());
     for (i, o) in obs.iter().enumerate() {
-        let point = if dof == 0 {
-            o.model_point
-        } else {
-            rig.arm
-                .as_ref()?
-                .end_effector(o.joints.as_ref()?, &offsets)
-                .ok()?
+        let point = match &arm {
+            None => o.model_point,
+            Some(arm) => arm.end_effector(o.joints.as_ref()?, &offsets).ok()?,
         };
-        let virtual_point = plane.reflect_point(&point);
+        let seen = match o.view {
+            View::Mirror => planes[o.placement].reflect_point(&point),
+            View::Direct => point,
+        };
         for k in 0..2 {
-            let d = rig.cameras[k].project(&virtual_point).ok()? - o.pixels[k];
+            let d = rig.cameras[k].project(&seen).ok()? - o.pixels[k];
             r[4 * i + 2 * k] = d.x;
             r[4 * i + 2 * k + 1] = d.y;
         }
@@ -71,56 +224,100 @@ fn residuals(
     Some(r)
 }
 
-/// Refines from `start`, the plane midway between the J's and Ĵ's.
+/// Refines from `starts`, each placement's plane midway between its J's and
+/// Ĵ's. `prior_sigma`: state the uncertainty, with this pixel noise where
+/// the residuals have no redundancy.
 pub(super) fn calibrate(
     rig: &Rig,
     obs: &[Observation],
-    start: Plane,
+    starts: &[Plane],
     with_kinematics: bool,
+    estimate: Estimate,
     prior_sigma: Option<f64>,
 ) -> Result<Calibration, CalibrateError> {
-    let dof = if with_kinematics {
-        rig.arm.as_ref().map_or(0, |a| a.dof())
-    } else {
-        0
-    };
-    let start_chart = PlaneChart::at(start.normal.into_inner());
-    let mut x0 = DVector::zeros(3 + dof);
-    x0[2] = start.distance;
-    let (x, _) = lsq::minimize(x0, |x| residuals(rig, obs, &start_chart, dof, x))?;
-    let plane = start_chart.plane(x.as_slice())?;
-    check_plane_clear_of_cameras(rig, &plane)?;
-    let r = residuals(rig, obs, &start_chart, dof, &x)
+    let layout = Layout::new(rig, starts.len(), with_kinematics, estimate);
+    let start_charts: Vec<PlaneChart> = starts
+        .iter()
+        .map(|p| PlaneChart::at(p.normal.into_inner()))
+        .collect();
+    let mut x0 = DVector::zeros(layout.len());
+    for (p, start) in starts.iter().enumerate() {
+        x0[3 * p + 2] = start.distance;
+    }
+    let (x, _) = lsq::minimize(x0, |x| residuals(rig, obs, &start_charts, &layout, x))?;
+    let solved = planes(&start_charts, x.as_slice())?;
+    for plane in &solved {
+        check_plane_clear_of_cameras(rig, plane)?;
+    }
+    let r = residuals(rig, obs, &start_charts, &layout, &x)
         .ok_or(GeometryError::NonFinite("joint refinement residuals"))?;
-    let joint_offsets: Option<Vec<f64>> =
-        with_kinematics.then(|| (0..dof).map(|j| x[3 + j]).collect());
-    // A fit whose covariance cannot be formed is still a fit: it says so.
-    let uncertainty = if let Some(prior_sigma) = prior_sigma {
-        uncertainty(
-            rig,
-            obs,
-            &plane,
-            joint_offsets.as_deref(),
-            dof,
-            &r,
-            prior_sigma,
-        )
-        .unwrap_or_else(|e| Uncertainty::not_stated(&e.to_string()))
-    } else {
-        Uncertainty::not_stated("not asked for")
+    let joint_offsets = with_kinematics.then(|| layout.offsets(x.as_slice()));
+    // The rig as solved: the base and tool corrections applied, so that
+    // the covariance is taken in a chart centred on them.
+    let mut solved_rig = rig.clone();
+    if estimate.any()
+        && let Some(arm) = solved_rig.arm.as_mut()
+    {
+        *arm = layout.arm_at(arm, x.as_slice()).into_owned();
+    }
+    // The base and tool are refused when not determined, so their
+    // covariance is needed even when the uncertainty is not asked for.
+    let uncertainty = match (prior_sigma, estimate.any()) {
+        (None, false) => Uncertainty::not_stated("not asked for"),
+        (prior, _) => {
+            let stated = uncertainty(
+                &solved_rig,
+                obs,
+                &solved,
+                joint_offsets.as_deref(),
+                &layout,
+                &r,
+                prior.unwrap_or(super::TRACKER_PIXEL_SIGMA),
+            );
+            if let Err(refusal @ CalibrateError::CannotEstimate { .. }) = stated {
+                return Err(refusal);
+            }
+            match (prior, stated) {
+                (None, _) => Uncertainty::not_stated("not asked for"),
+                (Some(_), Ok(u)) => u,
+                // A fit whose covariance cannot be formed is still a fit:
+                // it says so.
+                (Some(_), Err(e)) => Uncertainty::not_stated(&e.to_string()),
+            }
+        }
     };
+    let arm = solved_rig.arm.as_ref();
+    let mirror_samples = |p: usize| {
+        obs.iter()
+            .filter(|o| o.view == View::Mirror && o.placement == p)
+            .count()
+    };
+    let placements: Vec<PlacementFit> = solved
+        .iter()
+        .enumerate()
+        .map(|(p, plane)| PlacementFit {
+            plane: Some(*plane),
+            mirror_cameras: mirror_cameras(rig, plane),
+            samples: mirror_samples(p),
+        })
+        .collect();
     Ok(Calibration {
         method: if with_kinematics {
             Method::JointKinematics
         } else {
             Method::Joint
         },
-        plane: Some(plane),
-        mirror_cameras: mirror_cameras(rig, &plane),
+        plane: Some(solved[0]),
+        mirror_cameras: mirror_cameras(rig, &solved[0]),
         joint_offsets,
-        initial_cameras: mirror_cameras(rig, &start),
+        initial_cameras: mirror_cameras(rig, &starts[0]),
         train_rms_px: rms_px(&r),
-        samples: obs.len(),
+        samples: obs.iter().filter(|o| o.view == View::Mirror).count(),
+        direct_samples: obs.iter().filter(|o| o.view == View::Direct).count(),
+        placements,
+        world_from_base: arm.filter(|_| estimate.base).map(|a| a.world_from_base),
+        tool: arm.filter(|_| estimate.tool).map(|a| a.tool),
+        parameters: layout.len(),
         uncertainty,
         rejected: Vec::new(),
         fit: super::Fit::NotJudged,
@@ -132,79 +329,122 @@ fn mirror_cameras(rig: &Rig, plane: &Plane) -> [Camera; 2] {
     rig.cameras.map(|c| plane.mirror_camera(&c))
 }
 
-/// The covariance at the solution, in a chart centred on the solved normal
-/// so that the first two parameters are the normal's tilt in radians;
+/// The covariance at the solution, in charts centred on the solved normals
+/// (so that each plane's first two parameters are its tilt in radians) and
+/// on the solved base and tool (`rig` is the rig as solved);
 /// `solved_residuals` are the fit's residuals there, and `prior_sigma` the
-/// pixel noise assumed where they have no redundancy to measure it.
+/// pixel noise assumed where they have no redundancy to measure it. Fails
+/// with [`CalibrateError::CannotEstimate`] when the base or the tool is
+/// not determined.
 fn uncertainty(
     rig: &Rig,
     obs: &[Observation],
-    plane: &Plane,
+    planes: &[Plane],
     offsets: Option<&[f64]>,
-    dof: usize,
+    layout: &Layout,
     solved_residuals: &DVector<f64>,
     prior_sigma: f64,
 ) -> Result<Uncertainty, CalibrateError> {
-    let chart_here = PlaneChart::at(plane.normal.into_inner());
-    let mut y = DVector::zeros(3 + dof);
-    y[2] = plane.distance;
-    for (j, o) in offsets.unwrap_or_default().iter().enumerate() {
-        y[3 + j] = *o;
+    let charts_here: Vec<PlaneChart> = planes
+        .iter()
+        .map(|p| PlaneChart::at(p.normal.into_inner()))
+        .collect();
+    let mut y = DVector::zeros(layout.len());
+    for (p, plane) in planes.iter().enumerate() {
+        y[3 * p + 2] = plane.distance;
     }
-    let at = |y: &DVector<f64>| residuals(rig, obs, &chart_here, dof, y);
+    let offsets = offsets.unwrap_or_default();
+    for (i, &j) in layout.free_offsets.iter().enumerate() {
+        y[layout.offsets_at() + i] = offsets[j];
+    }
+    let at = |y: &DVector<f64>| residuals(rig, obs, &charts_here, layout, y);
     let undefined = || GeometryError::NonFinite("the fit's Jacobian at the solution");
     let jac = lsq::jacobian(&y, at).ok_or_else(undefined)?;
     let cov = lsq::covariance(&jac, solved_residuals, prior_sigma.powi(2))?;
-    let solved = mirror_cameras(rig, plane);
+    let names = |indices: &mut dyn Iterator<Item = usize>| {
+        let mut out: Vec<String> = indices.map(|i| layout.name(i, rig)).collect();
+        out.dedup();
+        out
+    };
+    let unknown_arm = names(
+        &mut cov
+            .undetermined
+            .iter()
+            .copied()
+            .filter(|&i| layout.is_base_or_tool(i)),
+    );
+    if !unknown_arm.is_empty() {
+        let others = names(
+            &mut cov
+                .undetermined
+                .iter()
+                .copied()
+                .filter(|&i| !layout.is_base_or_tool(i)),
+        );
+        let why = if others.is_empty() {
+            "the samples do not determine it".to_string()
+        } else {
+            format!("it trades off against {}", others.join(", "))
+        };
+        return Err(CalibrateError::CannotEstimate {
+            what: unknown_arm.join(", "),
+            why: format!("{why}; add direct views or mirror placements, or estimate less"),
+        });
+    }
+    let solved = mirror_cameras(rig, &planes[0]);
     let cameras = propagate_to_cameras(
         &cov,
-        &[0.0, 0.0, plane.distance],
-        &[1e-6, 1e-6, 1e-6 * (1.0 + plane.distance.abs())],
+        &[0.0, 0.0, planes[0].distance],
+        &[1e-6, 1e-6, 1e-6 * (1.0 + planes[0].distance.abs())],
         |p| {
-            let moved = chart_here.plane(p).ok()?;
+            let moved = charts_here[0].plane(p).ok()?;
             Some(chart(&solved, &mirror_cameras(rig, &moved)))
         },
     )
     .ok_or_else(undefined)?;
     let mut out = Uncertainty::from_cameras(cameras, cov.residual_variance);
     out.cameras_stated = !cov.undetermined.iter().any(|&i| i < 3);
-    if let (Some(a), Some(b)) = (cov.sigma(0), cov.sigma(1)) {
-        out.plane_angle_deg = Some(a.hypot(b).to_degrees());
+    let plane_sigma = |p: usize| PlaneSigma {
+        angle_deg: match (cov.sigma(3 * p), cov.sigma(3 * p + 1)) {
+            (Some(a), Some(b)) => Some(a.hypot(b).to_degrees()),
+            _ => None,
+        },
+        distance_mm: cov.sigma(3 * p + 2),
+    };
+    let first = plane_sigma(0);
+    out.plane_angle_deg = first.angle_deg;
+    out.plane_distance_mm = first.distance_mm;
+    if layout.placements > 1 {
+        out.placements = (0..layout.placements).map(plane_sigma).collect();
     }
-    out.plane_distance_mm = cov.sigma(2);
-    if offsets.is_some() {
+    if layout.kinematics {
         // Revolute offsets in degrees; a prismatic joint's stays in mm.
-        let kinds = rig.arm.as_ref().map(geometry::Arm::joint_kinds);
-        out.joint_offsets_deg = Some(
-            (0..dof)
-                .map(|j| {
-                    let prismatic = kinds.as_ref().and_then(|k| k.get(j))
-                        == Some(&geometry::JointKind::Prismatic);
-                    cov.sigma(3 + j)
-                        .map(|v| if prismatic { v } else { v.to_degrees() })
-                })
-                .collect(),
-        );
+        // An offset not estimated (part of the base or tool) has none.
+        let kinds = rig.arm.as_ref().map(Arm::joint_kinds);
+        let mut sigmas = vec![None; layout.dof];
+        for (i, &j) in layout.free_offsets.iter().enumerate() {
+            let prismatic =
+                kinds.as_ref().and_then(|k| k.get(j)) == Some(&geometry::JointKind::Prismatic);
+            sigmas[j] = cov
+                .sigma(layout.offsets_at() + i)
+                .map(|v| if prismatic { v } else { v.to_degrees() });
+        }
+        out.joint_offsets_deg = Some(sigmas);
     }
-    let joint_names = rig
-        .arm
-        .as_ref()
-        .map(geometry::Arm::joint_names)
-        .unwrap_or_default();
-    out.undetermined = cov
-        .undetermined
-        .iter()
-        .map(|&i| match i {
-            0 | 1 => "the mirror's tilt".to_string(),
-            2 => "the mirror's distance".to_string(),
-            j => format!(
-                "the encoder offset of {}",
-                joint_names
-                    .get(j - 3)
-                    .map_or_else(|| format!("joint {}", j - 2), Clone::clone)
-            ),
-        })
-        .collect();
-    out.undetermined.dedup();
+    // A 3-vector's 1-sigma: the RMS length of its error, sqrt(trace).
+    let rms = |at: usize| {
+        (0..3)
+            .map(|i| cov.matrix[(at + i, at + i)].max(0.0))
+            .sum::<f64>()
+            .sqrt()
+    };
+    if layout.estimate.base {
+        out.base_rotation_deg = Some(rms(layout.base_at()).to_degrees());
+        out.base_translation_mm = Some(rms(layout.base_at() + 3));
+    }
+    if layout.estimate.tool {
+        out.tool_mm = Some(rms(layout.tool_at()));
+    }
+    out.undetermined = names(&mut cov.undetermined.iter().copied());
     Ok(out)
 }

@@ -8,6 +8,10 @@
 //!   cameras derived from it and the known rig, refined on both cameras'
 //!   reprojection errors;
 //! - `joint+kinematics`: the joint plane plus per-joint encoder offsets.
+//!
+//! The joint methods also calibrate across several mirror placements (one
+//! plane each, the same cameras and arm), use direct views as constraints
+//! on the arm, and may estimate the arm's base and tool ([`Estimate`]).
 
 mod joint;
 mod paper;
@@ -17,7 +21,7 @@ pub use paper::initial_estimate as paper_initial_estimate;
 pub use uncertainty::Uncertainty;
 
 use geometry::{Camera, GeometryError, Plane, Rig, Sample, View, triangulate::triangulate};
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{Isometry3, Vector2, Vector3};
 
 /// Fewest mirror samples any method accepts.
 pub const MIN_SAMPLES: usize = 3;
@@ -84,6 +88,63 @@ pub enum CalibrateError {
     /// The geometry does not determine a solution.
     #[error(transparent)]
     Geometry(#[from] GeometryError),
+    /// Something asked to be estimated cannot be from these samples, or
+    /// with this method or rig.
+    #[error("cannot estimate {what}: {why}")]
+    CannotEstimate {
+        /// What was to be estimated.
+        what: String,
+        /// Why not, and what would help.
+        why: String,
+    },
+    /// An error in one placement's samples, when there are several.
+    #[error("placement {placement}: {source}")]
+    InPlacement {
+        /// Index of the placement (its samples file).
+        placement: usize,
+        /// The error.
+        source: Box<CalibrateError>,
+    },
+}
+
+/// What a calibration estimates of the arm beside the mirror: its base
+/// (`world_from_base`, 6 DOF) and its tool (the marker centre in the last
+/// link's frame, 3).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Estimate {
+    /// The arm's base placement.
+    pub base: bool,
+    /// The tool point.
+    pub tool: bool,
+}
+
+impl Estimate {
+    /// Whether anything is estimated.
+    pub fn any(self) -> bool {
+        self.base || self.tool
+    }
+}
+
+impl std::str::FromStr for Estimate {
+    type Err = String;
+
+    /// `base`, `tool`, `base,tool` (any order), or `none`.
+    fn from_str(list: &str) -> Result<Self, String> {
+        let mut out = Estimate::default();
+        for part in list.split(',').map(str::trim) {
+            match part {
+                "base" => out.base = true,
+                "tool" => out.tool = true,
+                "none" | "" => {}
+                other => {
+                    return Err(format!(
+                        "unknown quantity `{other}`: expected base, tool or base,tool"
+                    ));
+                }
+            }
+        }
+        Ok(out)
+    }
 }
 
 /// A computed calibration.
@@ -101,8 +162,18 @@ pub struct Calibration {
     pub initial_cameras: [Camera; 2],
     /// RMS reprojection error over both cameras on the training samples, px.
     pub train_rms_px: f64,
-    /// Mirror samples used.
+    /// Mirror samples used, over all placements.
     pub samples: usize,
+    /// Direct-view samples used as constraints on the arm.
+    pub direct_samples: usize,
+    /// Every placement, the first of which is `plane` and `mirror_cameras`.
+    pub placements: Vec<PlacementFit>,
+    /// The arm's base placement, when estimated.
+    pub world_from_base: Option<Isometry3<f64>>,
+    /// The tool point in the last link's frame, mm, when estimated.
+    pub tool: Option<Vector3<f64>>,
+    /// Parameters solved for.
+    pub parameters: usize,
     /// What the solved values are known to.
     pub uncertainty: Uncertainty,
     /// Samples set aside as not fitting the others (a wrong pairing, a
@@ -110,6 +181,17 @@ pub struct Calibration {
     pub rejected: Vec<RejectedSample>,
     /// Whether the samples kept fit the model to the expected noise.
     pub fit: Fit,
+}
+
+/// One mirror placement of a calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlacementFit {
+    /// Its mirror plane, for `joint` methods.
+    pub plane: Option<Plane>,
+    /// Its mirror-perspective cameras, left then right.
+    pub mirror_cameras: [Camera; 2],
+    /// Its mirror samples used.
+    pub samples: usize,
 }
 
 /// How well a calibration's model explains its samples, judged against the
@@ -152,19 +234,57 @@ impl Calibration {
             Fit::Poor { cause } => Some((FitVerdict::Poor, Some(cause.clone()))),
             Fit::NotJudged => None,
         })
+        .with_placements(
+            &rig.names,
+            &self
+                .placements
+                .iter()
+                .filter_map(|p| Some((p.plane?, p.mirror_cameras, p.samples)))
+                .collect::<Vec<_>>(),
+        )
+        .with_arm_estimate(
+            self.world_from_base.as_ref(),
+            self.tool.as_ref(),
+            self.direct_samples,
+        )
+    }
+
+    /// The rig with this calibration's estimated base and tool in its arm.
+    pub fn corrected_rig(&self, rig: &Rig) -> Rig {
+        let mut rig = rig.clone();
+        if let Some(arm) = rig.arm.as_mut() {
+            if let Some(base) = self.world_from_base {
+                arm.world_from_base = base;
+            }
+            if let Some(tool) = self.tool {
+                arm.tool = tool;
+            }
+        }
+        rig
+    }
+
+    /// Whether the end-effector point comes from the arm's forward
+    /// kinematics (offsets, base or tool estimated).
+    fn uses_arm(&self) -> bool {
+        self.joint_offsets.is_some() || self.world_from_base.is_some() || self.tool.is_some()
     }
 }
 
-/// One mirror sample prepared for a solver.
+/// One sample prepared for a solver.
 #[derive(Debug, Clone)]
 pub(crate) struct Observation {
     /// Its pose id.
     pub pose: u64,
+    /// The mirror placement (index of its samples set) it belongs to.
+    pub placement: usize,
+    /// Seen in the mirror or directly.
+    pub view: View,
     /// The end-effector model's prediction `J` (no offsets).
     pub model_point: Vector3<f64>,
     /// Joint readings, when known.
     pub joints: Option<Vec<f64>>,
-    /// `Ĵ`: the reflection triangulated through the real cameras.
+    /// `Ĵ`: the reflection triangulated through the real cameras (for a
+    /// direct view, the marker itself).
     pub reflected_point: Vector3<f64>,
     /// Detections, left then right.
     pub pixels: [Vector2<f64>; 2],
@@ -200,14 +320,32 @@ pub fn model_point(
     }
 }
 
-/// Checks and prepares the mirror samples (direct ones are ignored).
+/// How [`prepare`] reads a placement's samples.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Reading {
+    /// The placement the samples belong to.
+    pub placement: usize,
+    /// Every sample needs joint readings and the rig an arm: the solver
+    /// models the arm (encoder offsets, base or tool). Direct views are
+    /// then kept as constraints on it; else they are left out.
+    pub arm_modelled: bool,
+    /// `J` from the joints through the rig's arm, never a sample's
+    /// `jx,jy,jz` (which a corrected base or tool would make stale).
+    pub from_joints: bool,
+}
+
+/// Checks and prepares one placement's samples: its mirror views, and its
+/// direct views when the arm is modelled.
 pub(crate) fn prepare(
     rig: &Rig,
     samples: &[Sample],
-    need_joints: bool,
+    reading: Reading,
 ) -> Result<Vec<Observation>, CalibrateError> {
     let mut out = Vec::new();
-    for s in samples.iter().filter(|s| s.view == View::Mirror) {
+    let used = samples
+        .iter()
+        .filter(|s| s.view == View::Mirror || reading.arm_modelled);
+    for s in used {
         let bad = |reason: String| CalibrateError::BadSample {
             pose: s.pose,
             reason,
@@ -215,17 +353,20 @@ pub(crate) fn prepare(
         if !s.pixels.iter().all(|p| p.iter().all(|v| v.is_finite())) {
             return Err(bad("non-finite pixel coordinates".into()));
         }
-        if need_joints {
+        if reading.arm_modelled {
             if rig.arm.is_none() {
-                return Err(bad("joint offsets need the rig's [arm]".into()));
+                return Err(bad(
+                    "encoder offsets, the base and the tool need the rig's [arm]".into(),
+                ));
             }
             if s.joints.is_none() {
                 return Err(bad(
-                    "joint offsets need joint angles (q0..) in every sample".into(),
+                    "encoder offsets, the base and the tool need joint angles (q0..) in every sample"
+                        .into(),
                 ));
             }
         }
-        let model_point = model_point(rig, s, None)?;
+        let model_point = model_point(rig, s, reading.from_joints.then_some(&[][..]))?;
         if !model_point.iter().all(|v| v.is_finite()) {
             return Err(bad("non-finite end-effector position".into()));
         }
@@ -233,26 +374,42 @@ pub(crate) fn prepare(
             .map_err(|e| bad(format!("cannot triangulate: {e}")))?;
         out.push(Observation {
             pose: s.pose,
+            placement: reading.placement,
+            view: s.view,
             model_point,
             joints: s.joints.clone(),
             reflected_point,
             pixels: s.pixels,
         });
     }
-    if out.len() < MIN_SAMPLES {
-        return Err(CalibrateError::TooFewSamples { found: out.len() });
-    }
-    let mean = out.iter().map(|o| o.model_point).sum::<Vector3<f64>>() / out.len() as f64;
-    let spread_mm = (out
+    check_mirror_samples(&out)?;
+    Ok(out)
+}
+
+/// Fails unless the mirror views among `obs` are enough and spread enough
+/// to determine a plane.
+fn check_mirror_samples(obs: &[Observation]) -> Result<(), CalibrateError> {
+    let points: Vec<Vector3<f64>> = obs
         .iter()
-        .map(|o| (o.model_point - mean).norm_squared())
+        .filter(|o| o.view == View::Mirror)
+        .map(|o| o.model_point)
+        .collect();
+    if points.len() < MIN_SAMPLES {
+        return Err(CalibrateError::TooFewSamples {
+            found: points.len(),
+        });
+    }
+    let mean = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
+    let spread_mm = (points
+        .iter()
+        .map(|p| (p - mean).norm_squared())
         .sum::<f64>()
-        / out.len() as f64)
+        / points.len() as f64)
         .sqrt();
     if spread_mm < MIN_SPREAD_MM {
         return Err(CalibrateError::PosesAlike { spread_mm });
     }
-    Ok(out)
+    Ok(())
 }
 
 /// The mirror plane halfway between the `J`s and the `Ĵ`s (paper Eqs 6-9),
@@ -290,13 +447,13 @@ pub(crate) fn check_plane_clear_of_cameras(rig: &Rig, plane: &Plane) -> Result<(
 
 /// Fails if the cameras see the plane edge-on: the median angle between the
 /// rays to the reflections `Ĵ` and the plane is under [`MIN_GRAZING_DEG`].
-pub(crate) fn check_plane_not_edge_on(
+pub(crate) fn check_plane_not_edge_on<'a>(
     rig: &Rig,
     plane: &Plane,
-    obs: &[Observation],
+    obs: impl IntoIterator<Item = &'a Observation>,
 ) -> Result<(), CalibrateError> {
     let mut angles: Vec<f64> = obs
-        .iter()
+        .into_iter()
         .flat_map(|o| {
             rig.cameras.iter().map(move |c| {
                 let ray = (o.reflected_point - c.center).normalize();
@@ -380,7 +537,22 @@ pub fn calibrate(
     calibrate_with(rig, samples, method, CalibrateOptions::default())
 }
 
-/// Calibrates the mirror cameras from `samples` (mirror views) with `method`.
+/// Calibrates the mirror cameras of one mirror placement from `samples`
+/// with `method` (see [`calibrate_placements`]).
+pub fn calibrate_with(
+    rig: &Rig,
+    samples: &[Sample],
+    method: Method,
+    options: CalibrateOptions,
+) -> Result<Calibration, CalibrateError> {
+    calibrate_placements(rig, &[samples], method, Estimate::default(), options)
+}
+
+/// Calibrates from the samples of one or more mirror placements with
+/// `method`: one plane per placement, the rig's cameras and one arm shared
+/// by all, and with `estimate` the arm's base and tool too. Direct views
+/// are constraints on the arm when it is modelled (encoder offsets, base
+/// or tool), else left out.
 ///
 /// Samples that do not fit the others are found and set aside: after a
 /// least-squares fit on all of them, each sample's squared reprojection
@@ -391,16 +563,38 @@ pub fn calibrate(
 /// judged again against each new fit, so one set aside by a fit that the
 /// outliers had pulled comes back. The final calibration is a plain
 /// least-squares fit on the samples kept.
-pub fn calibrate_with(
+///
+/// What the samples cannot determine is refused: the base from one
+/// placement's mirror views alone (the plane trades off against it), and
+/// any base or tool direction the fit's Jacobian leaves free.
+pub fn calibrate_placements(
     rig: &Rig,
-    samples: &[Sample],
+    placements: &[&[Sample]],
     method: Method,
+    estimate: Estimate,
     options: CalibrateOptions,
 ) -> Result<Calibration, CalibrateError> {
-    let obs = prepare(rig, samples, method == Method::JointKinematics)?;
+    check_estimable(rig, placements, method, estimate)?;
+    let reading = |placement| Reading {
+        placement,
+        arm_modelled: method == Method::JointKinematics || estimate.any(),
+        from_joints: estimate.any(),
+    };
+    let mut obs = Vec::new();
+    for (p, samples) in placements.iter().enumerate() {
+        let prepared =
+            prepare(rig, samples, reading(p)).map_err(|e| in_placement(e, p, placements.len()))?;
+        obs.extend(prepared);
+    }
+    if estimate.base && placements.len() == 1 && obs.iter().all(|o| o.view == View::Mirror) {
+        return Err(CalibrateError::CannotEstimate {
+            what: "the arm's base".into(),
+            why: "from one mirror placement with mirror views only, the mirror plane trades off against the base (the reflections fix only the two together); add direct views (view = direct rows) or the samples of two more placements".into(),
+        });
+    }
     let sigma = options.pixel_sigma_for(rig);
     let prior = options.uncertainty.then_some(sigma);
-    let solve = |obs: &[Observation]| solve(rig, obs, method, prior);
+    let solve = |obs: &[Observation]| solve(rig, obs, placements.len(), method, estimate, prior);
     let mut cal = solve(&obs)?;
     let mut kept = vec![true; obs.len()];
     // Each sample's error under `cal`, kept current with it.
@@ -414,7 +608,7 @@ pub fn calibrate_with(
     };
     for _ in 0..rounds {
         let fitted = kept.iter().filter(|k| **k).count();
-        let keep = consistent(&errors, 4 * fitted, parameters(rig, method));
+        let keep = consistent(&errors, 4 * fitted, cal.parameters);
         let count = keep.iter().filter(|k| **k).count();
         // Setting aside more than a third is not outliers but a model that
         // does not fit (judged below), and too few left cannot be solved.
@@ -428,8 +622,8 @@ pub fn calibrate_with(
             .filter(|(_, k)| **k)
             .map(|(o, _)| o.clone())
             .collect();
-        // A subset that cannot be solved (seen edge-on, say) leaves the
-        // last fit standing.
+        // A subset that cannot be solved (seen edge-on, too few left in a
+        // placement) leaves the last fit standing.
         match solve(&subset) {
             Ok(refit) => cal = refit,
             Err(e) => {
@@ -440,6 +634,7 @@ pub fn calibrate_with(
         kept = keep;
         errors = squared_errors(rig, &obs, &cal);
     }
+    let several = placements.len() > 1;
     cal.rejected = obs
         .iter()
         .zip(&kept)
@@ -448,35 +643,101 @@ pub fn calibrate_with(
         .map(|((o, _), e)| RejectedSample {
             pose: o.pose,
             residual_px: (e / 2.0).sqrt(),
+            placement: several.then_some(o.placement),
         })
         .collect();
     cal.fit = if options.judge_fit {
-        judge(rig, samples, method, &cal, sigma, too_many_outliers)
+        let offset_model_fits = || {
+            method == Method::Joint
+                && calibrate_placements(
+                    rig,
+                    placements,
+                    Method::JointKinematics,
+                    estimate,
+                    CalibrateOptions {
+                        uncertainty: false,
+                        pixel_sigma: Some(sigma),
+                        ..CalibrateOptions::default()
+                    },
+                )
+                .is_ok_and(|c| c.fit == Fit::Good)
+        };
+        judge(&cal, sigma, too_many_outliers, offset_model_fits)
     } else {
         Fit::NotJudged
     };
     Ok(cal)
 }
 
+/// Refuses, before any fit, what `method` or the rig cannot estimate.
+fn check_estimable(
+    rig: &Rig,
+    placements: &[&[Sample]],
+    method: Method,
+    estimate: Estimate,
+) -> Result<(), CalibrateError> {
+    let what = || match (estimate.base, estimate.tool) {
+        (true, true) => "the arm's base and tool",
+        (true, false) => "the arm's base",
+        _ => "the tool",
+    };
+    if placements.is_empty() {
+        return Err(CalibrateError::TooFewSamples { found: 0 });
+    }
+    if method == Method::Paper && placements.len() > 1 {
+        return Err(CalibrateError::CannotEstimate {
+            what: "one calibration across several placements".into(),
+            why: "the paper's method solves each mirror camera on its own; use --method joint or joint+kinematics".into(),
+        });
+    }
+    if !estimate.any() {
+        return Ok(());
+    }
+    if method == Method::Paper {
+        return Err(CalibrateError::CannotEstimate {
+            what: what().into(),
+            why: "the paper's method has no arm model; use --method joint or joint+kinematics"
+                .into(),
+        });
+    }
+    if rig.arm.is_none() {
+        return Err(CalibrateError::CannotEstimate {
+            what: what().into(),
+            why: "the rig has no [arm]".into(),
+        });
+    }
+    Ok(())
+}
+
+/// `e` as an error of placement `p`, when there is more than one.
+fn in_placement(e: CalibrateError, p: usize, placements: usize) -> CalibrateError {
+    if placements > 1 {
+        CalibrateError::InPlacement {
+            placement: p,
+            source: Box::new(e),
+        }
+    } else {
+        e
+    }
+}
+
 /// Whether `cal` fits its kept samples to the noise `sigma` explains: the
 /// sum of squared residuals over `sigma^2` against the 99.9% point of
 /// chi-square with (residuals - parameters) degrees of freedom. When it
 /// does not, the likely cause, tried in turn: encoder offsets that `joint`
-/// cannot model (then `joint+kinematics` fits), samples from more than one
-/// mirror or rig (the outlier test found over a third inconsistent, or the
-/// residuals are many times the noise), or detections noisier than stated.
+/// cannot model (then `joint+kinematics` fits: `offset_model_fits`),
+/// samples from more than one mirror or rig (the outlier test found over a
+/// third inconsistent, or the residuals are many times the noise), or
+/// detections noisier than stated.
 fn judge(
-    rig: &Rig,
-    samples: &[Sample],
-    method: Method,
     cal: &Calibration,
     sigma: f64,
     too_many_outliers: bool,
+    offset_model_fits: impl Fn() -> bool,
 ) -> Fit {
-    let residuals = 4 * cal.samples;
-    let p = parameters(rig, method);
+    let residuals = 4 * (cal.samples + cal.direct_samples);
     let chi2 = cal.train_rms_px.powi(2) * (residuals as f64 / 2.0) / (sigma * sigma);
-    let limit = chi2_quantile_999(residuals.saturating_sub(p).max(1));
+    let limit = chi2_quantile_999(residuals.saturating_sub(cal.parameters).max(1));
     if chi2 <= limit {
         return Fit::Good;
     }
@@ -485,23 +746,7 @@ fn judge(
         cal.train_rms_px,
         sigma * 2f64.sqrt()
     );
-    let offset_model_fits = method == Method::Joint
-        && rig.arm.is_some()
-        && samples
-            .iter()
-            .all(|s| s.view != View::Mirror || s.joints.is_some())
-        && calibrate_with(
-            rig,
-            samples,
-            Method::JointKinematics,
-            CalibrateOptions {
-                uncertainty: false,
-                pixel_sigma: Some(sigma),
-                ..CalibrateOptions::default()
-            },
-        )
-        .is_ok_and(|c| c.fit == Fit::Good);
-    let cause = if offset_model_fits {
+    let cause = if offset_model_fits() {
         format!("{leaves}; joint readings look offset: use --method joint+kinematics")
     } else if too_many_outliers || chi2 > NOISIER_THAN_STATED.powi(2) * limit {
         format!(
@@ -544,15 +789,22 @@ const MIN_NOISE_PX: f64 = 1e-3;
 /// Each sample's squared reprojection error under `cal`, px^2 (both
 /// cameras); infinite where the model point does not project.
 fn squared_errors(rig: &Rig, obs: &[Observation], cal: &Calibration) -> Vec<f64> {
+    let rig = cal.corrected_rig(rig);
+    let arm = rig.arm.as_ref().filter(|_| cal.uses_arm());
+    let offsets = cal.joint_offsets.as_deref().unwrap_or_default();
     obs.iter()
         .map(|o| {
-            let point = match (&cal.joint_offsets, &rig.arm, &o.joints) {
-                (Some(offsets), Some(arm), Some(q)) => arm.end_effector(q, offsets).ok(),
+            let point = match (arm, &o.joints) {
+                (Some(arm), Some(q)) => arm.end_effector(q, offsets).ok(),
                 _ => Some(o.model_point),
             };
+            let cameras = match o.view {
+                View::Mirror => cal.placements.get(o.placement).map(|p| &p.mirror_cameras),
+                View::Direct => Some(&rig.cameras),
+            };
             let error = |k: usize| {
-                let p = point?;
-                Some((cal.mirror_cameras[k].project(&p).ok()? - o.pixels[k]).norm_squared())
+                let (p, cameras) = (point?, cameras?);
+                Some((cameras[k].project(&p).ok()? - o.pixels[k]).norm_squared())
             };
             match (error(0), error(1)) {
                 (Some(a), Some(b)) if (a + b).is_finite() => a + b,
@@ -560,15 +812,6 @@ fn squared_errors(rig: &Rig, obs: &[Observation], cal: &Calibration) -> Vec<f64>
             }
         })
         .collect()
-}
-
-/// Parameters `method` solves for.
-fn parameters(rig: &Rig, method: Method) -> usize {
-    match method {
-        Method::Paper => 12,
-        Method::Joint => 3,
-        Method::JointKinematics => 3 + rig.arm.as_ref().map_or(0, |a| a.dof()),
-    }
 }
 
 /// Which samples are consistent with the noise the samples show, from a fit
@@ -588,35 +831,65 @@ fn consistent(errors: &[f64], residuals: usize, parameters: usize) -> Vec<bool> 
         .collect()
 }
 
-/// One least-squares calibration of `obs` with `method`, checked.
+/// One least-squares calibration of `obs` (from `placements` placements)
+/// with `method`, checked.
 fn solve(
     rig: &Rig,
     obs: &[Observation],
+    placements: usize,
     method: Method,
+    estimate: Estimate,
     prior_sigma: Option<f64>,
 ) -> Result<Calibration, CalibrateError> {
-    // The J/Ĵ midplane: the joint methods start from it, and the paper's
-    // per-camera planes are it in each camera's frame.
-    let start = midplane(obs.iter().map(|o| (o.model_point, o.reflected_point)))?;
-    check_plane_clear_of_cameras(rig, &start)?;
-    check_plane_not_edge_on(rig, &start, obs)?;
+    // Each placement's J/Ĵ midplane: the joint methods start from it, and
+    // the paper's per-camera planes are it in each camera's frame.
+    let mut starts = Vec::with_capacity(placements);
+    for p in 0..placements {
+        let mirrored: Vec<&Observation> = obs
+            .iter()
+            .filter(|o| o.placement == p && o.view == View::Mirror)
+            .collect();
+        let start = (|| {
+            if mirrored.len() < MIN_SAMPLES {
+                return Err(CalibrateError::TooFewSamples {
+                    found: mirrored.len(),
+                });
+            }
+            let start = midplane(mirrored.iter().map(|o| (o.model_point, o.reflected_point)))?;
+            check_plane_clear_of_cameras(rig, &start)?;
+            check_plane_not_edge_on(rig, &start, mirrored.iter().copied())?;
+            Ok(start)
+        })()
+        .map_err(|e| in_placement(e, p, placements))?;
+        starts.push(start);
+    }
     let cal = match method {
         Method::Paper => paper::calibrate(rig, obs, prior_sigma)?,
-        Method::Joint => joint::calibrate(rig, obs, start, false, prior_sigma)?,
-        Method::JointKinematics => joint::calibrate(rig, obs, start, true, prior_sigma)?,
+        Method::Joint => joint::calibrate(rig, obs, &starts, false, estimate, prior_sigma)?,
+        Method::JointKinematics => {
+            joint::calibrate(rig, obs, &starts, true, estimate, prior_sigma)?
+        }
     };
-    let finite = cal.mirror_cameras.iter().all(|c| {
-        c.camera_from_world
-            .iter()
-            .chain(c.center.iter())
-            .all(|v| v.is_finite())
+    let finite = cal.placements.iter().all(|p| {
+        p.mirror_cameras.iter().all(|c| {
+            c.camera_from_world
+                .iter()
+                .chain(c.center.iter())
+                .all(|v| v.is_finite())
+        })
     }) && cal.train_rms_px.is_finite();
     if !finite {
         return Err(GeometryError::NonFinite("calibration result").into());
     }
-    if let Some(plane) = &cal.plane {
-        check_plane_clear_of_cameras(rig, plane)?;
-        check_plane_not_edge_on(rig, plane, obs)?;
+    for (p, placement) in cal.placements.iter().enumerate() {
+        if let Some(plane) = &placement.plane {
+            let mirrored = obs
+                .iter()
+                .filter(|o| o.placement == p && o.view == View::Mirror);
+            check_plane_clear_of_cameras(rig, plane)
+                .and_then(|()| check_plane_not_edge_on(rig, plane, mirrored))
+                .map_err(|e| in_placement(e, p, placements))?;
+        }
     }
     Ok(cal)
 }

@@ -13,7 +13,7 @@ use super::{CalibrateError, Calibration, Method, Observation, midplane, prepare,
 /// fixes the roll about the axis 180 degrees away from the true one, since
 /// the true mirror camera's rotation is a half-turn about the mirror normal.
 pub fn initial_estimate(rig: &Rig, samples: &[Sample]) -> Result<[Camera; 2], CalibrateError> {
-    let obs = prepare(rig, samples, false)?;
+    let obs = prepare(rig, samples, super::Reading::default())?;
     Ok([
         initial_camera(&rig.cameras[0], &obs)?,
         initial_camera(&rig.cameras[1], &obs)?,
@@ -144,6 +144,15 @@ pub(super) fn calibrate(
         initial_cameras: initial,
         train_rms_px: rms_px(&all),
         samples: obs.len(),
+        direct_samples: 0,
+        placements: vec![super::PlacementFit {
+            plane: None,
+            mirror_cameras: [left.camera, right.camera],
+            samples: obs.len(),
+        }],
+        world_from_base: None,
+        tool: None,
+        parameters: 12,
         uncertainty,
         rejected: Vec::new(),
         fit: super::Fit::NotJudged,

@@ -89,6 +89,26 @@ pub struct Uncertainty {
     /// Whether the mirror cameras' covariance is stated: false when what
     /// they depend on is not determined, or no covariance could be formed.
     pub cameras_stated: bool,
+    /// Each placement's plane, when calibrated across more than one (the
+    /// first is also `plane_angle_deg` and `plane_distance_mm`).
+    pub placements: Vec<PlaneSigma>,
+    /// RMS rotation angle between the true and the estimated arm base,
+    /// deg, when the base is estimated.
+    pub base_rotation_deg: Option<f64>,
+    /// RMS distance between the true and the estimated base origin, mm.
+    pub base_translation_mm: Option<f64>,
+    /// RMS distance between the true and the estimated tool point, mm,
+    /// when the tool is estimated.
+    pub tool_mm: Option<f64>,
+}
+
+/// One mirror plane's 1-sigma values.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlaneSigma {
+    /// RMS angle between the true and the estimated normal, deg.
+    pub angle_deg: Option<f64>,
+    /// The plane offset `d`, mm.
+    pub distance_mm: Option<f64>,
 }
 
 impl Uncertainty {
@@ -112,6 +132,10 @@ impl Uncertainty {
             undetermined: Vec::new(),
             cameras,
             cameras_stated: true,
+            placements: Vec::new(),
+            base_rotation_deg: None,
+            base_translation_mm: None,
+            tool_mm: None,
         }
     }
 
@@ -129,6 +153,10 @@ impl Uncertainty {
             undetermined: vec![format!("the uncertainty: {reason}")],
             cameras: CameraCovariance::zeros(),
             cameras_stated: false,
+            placements: Vec::new(),
+            base_rotation_deg: None,
+            base_translation_mm: None,
+            tool_mm: None,
         }
     }
 
@@ -142,6 +170,17 @@ impl Uncertainty {
             mirror_camera_centers_mm: self.mirror_camera_centers_mm,
             mirror_camera_angles_deg: self.mirror_camera_angles_deg,
             undetermined: self.undetermined.clone(),
+            placements: self
+                .placements
+                .iter()
+                .map(|p| formats::calibration::PlaneSigmaEntry {
+                    plane_angle_deg: p.angle_deg,
+                    plane_distance_mm: p.distance_mm,
+                })
+                .collect(),
+            base_translation_mm: self.base_translation_mm,
+            base_rotation_deg: self.base_rotation_deg,
+            tool_mm: self.tool_mm,
         }
     }
 
