@@ -135,6 +135,16 @@ pub enum FitVerdict {
     Poor,
 }
 
+impl FitVerdict {
+    /// Its name in files: `good` or `poor`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FitVerdict::Good => "good",
+            FitVerdict::Poor => "poor",
+        }
+    }
+}
+
 /// A sample the calibration set aside as not fitting the others.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RejectedEntry {

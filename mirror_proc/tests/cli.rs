@@ -369,3 +369,140 @@ fn export_writes_a_corrected_arm_and_the_mirror_transforms() {
         }
     }
 }
+
+#[test]
+fn calibrate_across_placements_estimates_the_tool_and_refuses_what_it_cannot() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for m in 0..3 {
+        let out = p(d, &format!("m{m}"));
+        let m = m.to_string();
+        ok(&[
+            "simulate", "--mirror", &m, "--noise", "none", "--train", "12", "--test", "5",
+            "--direct", "5", "--out", &out,
+        ]);
+    }
+    // The rig as a user measured it: the tool 5 mm off.
+    let rig_text = std::fs::read_to_string(d.join("m0/rig.toml")).unwrap();
+    let tool_line = rig_text
+        .lines()
+        .find(|l| l.starts_with("tool = "))
+        .expect("the rig states its tool");
+    let true_tool: Vec<f64> = tool_line["tool = ".len()..]
+        .trim_matches(|c| c == '[' || c == ']')
+        .split(',')
+        .map(|v| v.trim().parse().unwrap())
+        .collect();
+    let wrong = format!(
+        "tool = [{}, {}, {}]",
+        true_tool[0] + 3.0,
+        true_tool[1] - 4.0,
+        true_tool[2]
+    );
+    std::fs::write(d.join("wrong.toml"), rig_text.replace(tool_line, &wrong)).unwrap();
+    let rig = p(d, "wrong.toml");
+    let samples: Vec<String> = (0..3).map(|m| p(d, &format!("m{m}/train.csv"))).collect();
+
+    // One placement's mirror views cannot place the base.
+    let err = fails(&[
+        "calibrate",
+        "--rig",
+        &rig,
+        "--samples",
+        &samples[0],
+        "--estimate",
+        "base",
+    ]);
+    assert!(err.contains("cannot estimate the arm's base"), "{err}");
+    let err = fails(&[
+        "calibrate",
+        "--rig",
+        &rig,
+        "--samples",
+        &samples[0],
+        "--estimate",
+        "hand",
+    ]);
+    assert!(err.contains("--estimate") && err.contains("hand"), "{err}");
+
+    let cal_path = p(d, "cal.json");
+    ok(&[
+        "calibrate",
+        "--rig",
+        &rig,
+        "--samples",
+        &samples[0],
+        "--samples",
+        &samples[1],
+        "--samples",
+        &samples[2],
+        "--method",
+        "joint",
+        "--estimate",
+        "tool",
+        "--out",
+        &cal_path,
+    ]);
+    let cal = json(&std::fs::read_to_string(&cal_path).unwrap());
+    assert_eq!(cal["placements"].as_array().unwrap().len(), 3, "{cal}");
+    assert!(
+        cal.get("world_from_base").is_none(),
+        "the base was not asked for"
+    );
+    let tool: Vec<f64> = cal["tool"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    for k in 0..3 {
+        assert!(
+            (tool[k] - true_tool[k]).abs() < 0.01,
+            "tool {tool:?}, truth {true_tool:?}"
+        );
+    }
+    // Each placement's cameras, with the corrected tool: noiseless, so exact.
+    for m in 0..3 {
+        let e = json(&ok(&[
+            "evaluate",
+            "--rig",
+            &rig,
+            "--calibration",
+            &cal_path,
+            "--samples",
+            &p(d, &format!("m{m}/test.csv")),
+            "--placement",
+            &m.to_string(),
+        ]));
+        let mm = e["mirror_3d_mm"].as_f64().unwrap();
+        assert!(mm < 0.01, "placement {m}: {e}");
+    }
+    let err = fails(&[
+        "evaluate",
+        "--rig",
+        &rig,
+        "--calibration",
+        &cal_path,
+        "--samples",
+        &samples[0],
+        "--placement",
+        "3",
+    ]);
+    assert!(
+        err.contains("--placement") && err.contains("3 placement"),
+        "{err}"
+    );
+    // The export's rig carries the tool as calibrated.
+    ok(&[
+        "export",
+        "--rig",
+        &rig,
+        "--calibration",
+        &cal_path,
+        "--out",
+        &p(d, "export"),
+    ]);
+    let corrected = formats::rig::read(d.join("export/rig.corrected.toml")).unwrap();
+    let exported = corrected.arm.unwrap().tool;
+    assert!((exported - nalgebra::Vector3::from_vec(tool)).norm() < 1e-9);
+}

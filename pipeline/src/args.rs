@@ -29,6 +29,12 @@ pub struct Args {
     /// Calibration method: paper, joint or joint+kinematics (overrides the config).
     #[arg(long)]
     pub method: Option<Method>,
+    /// When the run ends, calibrate across its placements estimating the
+    /// arm's base and/or tool too: base, tool or base,tool (overrides the
+    /// config's `estimate`). One combined calibration goes into
+    /// OUT/report.json.
+    #[arg(long, value_name = "LIST")]
+    pub estimate: Option<String>,
     /// Camera frame rate, Hz (overrides the config).
     #[arg(long)]
     pub fps: Option<f64>,

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use mirror_proc::calibrate::Method;
+use mirror_proc::calibrate::{Estimate, Method};
 use serde::{Deserialize, Serialize};
 
 use crate::split::SplitConfig;
@@ -82,6 +82,52 @@ pub struct Config {
     /// (`ulimit -r`); without, the launcher says so and runs them normally.
     #[serde(default = "default_realtime_priority")]
     pub realtime_priority: u8,
+    /// What to estimate of the arm across the placements when the run
+    /// ends (`base`, `tool` or `base,tool`; `--estimate`): one combined
+    /// calibration in `report.json`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub estimate: Option<String>,
+    /// How far the rig handed to the stages is from the simulated robot,
+    /// as a rig measured by hand would be (`[rig_error]`); the simulator
+    /// and the truth in the report keep the true one.
+    #[serde(default, skip_serializing_if = "RigError::is_zero")]
+    pub rig_error: RigError,
+}
+
+/// Errors put into the rig the stages get (`[rig_error]`), in fixed
+/// directions: the base shifted along `(1, 2, -1)` of its frame and turned
+/// about `(1, -1, 1)`, the tool shifted along `(1, 0, 1)`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigError {
+    /// The base's shift, mm.
+    #[serde(default)]
+    pub base_mm: f64,
+    /// The base's turn, degrees.
+    #[serde(default)]
+    pub base_deg: f64,
+    /// The tool point's shift, mm.
+    #[serde(default)]
+    pub tool_mm: f64,
+}
+
+impl RigError {
+    fn is_zero(&self) -> bool {
+        *self == RigError::default()
+    }
+
+    /// `rig` with these errors in its arm.
+    pub fn apply(&self, rig: &geometry::Rig) -> geometry::Rig {
+        use nalgebra::{Isometry3, Vector3};
+        let mut rig = rig.clone();
+        if let Some(arm) = rig.arm.as_mut() {
+            let shift = Vector3::new(1.0, 2.0, -1.0).normalize() * self.base_mm;
+            let turn = Vector3::new(1.0, -1.0, 1.0).normalize() * self.base_deg.to_radians();
+            arm.world_from_base *= Isometry3::new(shift, turn);
+            arm.tool += Vector3::new(1.0, 0.0, 1.0).normalize() * self.tool_mm;
+        }
+        rig
+    }
 }
 
 /// The ROS 2 graph the robot is on (`[ros2]`).
@@ -216,6 +262,8 @@ pub struct Overrides {
     pub ros2: Option<String>,
     /// Real-time priority of the stages between frame and sample.
     pub realtime_priority: Option<u8>,
+    /// What to estimate of the arm across the placements (`--estimate`).
+    pub estimate: Option<String>,
 }
 
 impl Config {
@@ -234,7 +282,9 @@ impl Config {
             arm_driver,
             ros2,
             realtime_priority,
+            estimate,
         } = overrides;
+        config.estimate = estimate.or(config.estimate);
         config.mirrors = mirrors.unwrap_or(config.mirrors);
         config.train_poses = train_poses.unwrap_or(config.train_poses);
         config.method = method.unwrap_or(config.method);
@@ -324,7 +374,36 @@ impl Config {
                 config.realtime_priority
             );
         }
+        if let Some(list) = &config.estimate {
+            let estimate: Estimate = list
+                .parse()
+                .map_err(|e| anyhow::anyhow!("{}: key estimate: {e}", path.display()))?;
+            if estimate.any() && config.method == Method::Paper {
+                bail!(
+                    "{}: key estimate: the paper's method has no arm model to correct; use method joint or joint+kinematics",
+                    path.display()
+                );
+            }
+        }
+        let e = &config.rig_error;
+        if ![e.base_mm, e.base_deg, e.tool_mm]
+            .iter()
+            .all(|v| v.is_finite() && *v >= 0.0)
+        {
+            bail!(
+                "{}: table rig_error: base_mm, base_deg and tool_mm must be finite and not negative",
+                path.display()
+            );
+        }
         Ok(config)
+    }
+
+    /// What to estimate of the arm across the placements.
+    pub fn estimate(&self) -> Estimate {
+        self.estimate
+            .as_deref()
+            .and_then(|e| e.parse().ok())
+            .unwrap_or_default()
     }
 }
 

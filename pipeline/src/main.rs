@@ -15,6 +15,7 @@
 
 mod args;
 mod certs;
+mod combined;
 mod config;
 mod replay;
 mod report;
@@ -78,6 +79,7 @@ fn run(args: Args) -> Result<()> {
         arm_driver: args.arm_driver,
         ros2: args.ros2,
         realtime_priority: args.realtime_priority,
+        estimate: args.estimate,
     };
     let config_path = replay
         .as_ref()
@@ -132,14 +134,36 @@ fn run(args: Args) -> Result<()> {
             .map(|&m| run.placement(m))
             .collect::<Result<Vec<_>>>()?,
     };
+    // Across the placements, where this host ran the mirror stage.
+    let estimate = run.config.estimate();
+    let combined = if estimate.any() && args.side != Some(Side::Robot) {
+        if replay.is_some() {
+            bail!("--estimate cannot be used with --replay: a replay holds one placement");
+        }
+        Some(combined::calibrate(&run, estimate))
+    } else {
+        None
+    };
+    let (combined, failed) = match combined {
+        Some(Ok(c)) => (Some(c), None),
+        Some(Err(e)) => (None, Some(e)),
+        None => (None, None),
+    };
     report::finish(
         &results,
+        combined.as_ref(),
         &run,
         &args.out,
         args.report,
         args.side,
         replay.is_some(),
-    )
+    )?;
+    // The placements' report is written first: a combined calibration
+    // that cannot be made fails the run, but loses nothing.
+    match failed {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
 }
 
 fn main() -> ExitCode {

@@ -13,6 +13,7 @@ use mirror_proc::live::LiveReport;
 use serde::Serialize;
 
 use crate::args::ReportFormat;
+use crate::combined::Combined;
 use crate::run::Run;
 use crate::split::Side;
 
@@ -21,6 +22,7 @@ use crate::split::Side;
 /// that ends without a calibration fails, whatever else it did.
 pub fn finish(
     results: &[PlacementResult],
+    combined: Option<&Combined>,
     run: &Run,
     out: &Path,
     format: ReportFormat,
@@ -28,12 +30,15 @@ pub fn finish(
     replayed: bool,
 ) -> Result<()> {
     let path = out.join("report.json");
-    let json = serde_json::json!({
+    let mut json = serde_json::json!({
         "config": run.config,
         "realtime_priority": run.realtime,
         "paper": PAPER_FIGURES,
         "placements": results,
     });
+    if let Some(c) = combined {
+        json["combined"] = serde_json::to_value(c)?;
+    }
     let text = serde_json::to_string_pretty(&json)? + "\n";
     std::fs::write(&path, &text).with_context(|| format!("{}: cannot write", path.display()))?;
     if format == ReportFormat::Json {
@@ -41,6 +46,9 @@ pub fn finish(
     } else {
         if side != Some(Side::Robot) {
             print!("{}", table(results, run.config.method));
+        }
+        if let Some(c) = combined {
+            print!("{}", crate::combined::lines(c));
         }
         print!("{}", latency_table(results));
         print!("{}", cpu_table(results));

@@ -61,7 +61,7 @@ pub struct Run {
 }
 
 /// The simulated dataset of a placement and the pose plan made from it.
-fn plan_for(config: &Config, mirror: usize) -> Result<(Dataset, Vec<PlannedPose>)> {
+pub(crate) fn plan_for(config: &Config, mirror: usize) -> Result<(Dataset, Vec<PlannedPose>)> {
     let counts = Counts {
         train: config.train_poses,
         test: config.test_poses,
@@ -131,9 +131,10 @@ impl Run {
         // Live detections come from the tracker on renders, not from the
         // simulator's drawn pixel noise: the rig states none, and the
         // calibration judges against the tracker's own.
+        // With [rig_error], the arm as a hand-measured rig would have it.
         let live_rig = geometry::Rig {
             pixel_sigma: None,
-            ..data.rig.clone()
+            ..config.rig_error.apply(&data.rig)
         };
         formats::rig::write(&rig, &live_rig)?;
         let plan_path = dir.join("plan.csv");

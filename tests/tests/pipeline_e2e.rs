@@ -329,3 +329,77 @@ fn the_live_view_without_the_recorder_is_refused_in_one_line() {
     );
     assert!(!dir.path().join("mirror0").exists(), "a stage started");
 }
+
+/// A run whose rig has the arm's base 20 mm and 2 deg off and its tool
+/// 5 mm off (`[rig_error]`), over three placements with direct views:
+/// `estimate = "base,tool"` calibrates across them when the run ends, and
+/// puts the marker where the simulator has it.
+#[test]
+fn a_run_estimates_the_arms_base_and_tool_across_its_placements() {
+    let bins = stage_binaries();
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("pipeline.toml");
+    std::fs::write(
+        &config,
+        "preset = \"nico\"\nmirrors = [0, 1, 2]\ntrain_poses = 10\ntest_poses = 2\ndirect_poses = 5\n\
+         method = \"joint+kinematics\"\nsource = \"sim\"\nfps = 30.0\nmove_ms = 100\ndwell_ms = 250\n\
+         seed = 5\nmin_train = 8\nestimate = \"base,tool\"\n\n[rig_error]\nbase_mm = 20.0\nbase_deg = 2.0\ntool_mm = 5.0\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let output = Command::new(bins.join("pipeline"))
+        .args([
+            "--config",
+            config.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .args(["--prefix", &unique_prefix("estimate"), "--no-record"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "pipeline failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        stdout.contains("combined calibration across mirrors [0, 1, 2]"),
+        "{stdout}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let c = &report["combined"];
+    let cal = &c["calibration"];
+    assert_eq!(cal["fit"], "good", "{cal}");
+    assert_eq!(cal["placements"].as_array().unwrap().len(), 3);
+    assert!(
+        cal["world_from_base"].is_array() && cal["tool"].is_array(),
+        "{cal}"
+    );
+    let u = &cal["uncertainty"];
+    for key in ["base_rotation_deg", "base_translation_mm", "tool_mm"] {
+        assert!(u[key].as_f64().is_some_and(|v| v > 0.0), "{key}: {u}");
+    }
+    // The rig as given puts the marker ~20 mm off; the combined calibration
+    // within a few mm (renders leave about 2 mm: docs/methods.md).
+    let (fixed, given) = (
+        c["marker_rms_mm"].as_f64().unwrap(),
+        c["marker_rms_mm_rig"].as_f64().unwrap(),
+    );
+    assert!(
+        given > 10.0 && fixed < 4.0,
+        "marker {fixed} mm RMS, rig as given {given} mm"
+    );
+    for p in c["placements"].as_array().unwrap() {
+        let (angle, distance) = (
+            p["plane_angle_deg"].as_f64().unwrap(),
+            p["plane_distance_mm"].as_f64().unwrap(),
+        );
+        assert!(angle < 0.2 && distance < 3.0, "{p}");
+    }
+    eprintln!(
+        "marker {fixed:.2} mm RMS (rig as given {given:.2} mm); planes {}",
+        c["placements"]
+    );
+}
