@@ -543,11 +543,24 @@ impl Live {
                 w.done = true;
                 let state = w.state;
                 self.poses_sampled.insert(state.pose);
-                let pixels = [l.center, r.center];
+                let pixels = [self.marker_pixel(0, l), self.marker_pixel(1, r)];
                 self.add_sample(state, d.stamp_ns, pixels, out);
             }
         }
         self.locate_objects(d, out);
+    }
+
+    /// Where the centre of marker `m`, found by camera `k`, lies in the
+    /// image: its corners' diagonals crossed through the lens model
+    /// (the tracker's crossing of the raw corners is off by up to a pixel
+    /// under distortion); the tracker's where that fails.
+    fn marker_pixel(&self, k: usize, m: &messages::Marker) -> [f64; 2] {
+        let c = m.corners;
+        let corners = [0, 1, 2, 3].map(|i| Vector2::new(c[2 * i], c[2 * i + 1]));
+        self.rig.cameras[k]
+            .intrinsics
+            .marker_center(&corners)
+            .map_or(m.center, Into::into)
     }
 
     fn add_sample(
@@ -698,7 +711,8 @@ impl Live {
                 continue;
             };
             let refs = [&cal.mirror_cameras[0], &cal.mirror_cameras[1]];
-            if let Ok(p) = triangulate(refs, [Vector2::from(m.center), Vector2::from(r.center)]) {
+            let pixels = [self.marker_pixel(0, m), self.marker_pixel(1, r)].map(Vector2::from);
+            if let Ok(p) = triangulate(refs, pixels) {
                 self.located.insert(m.id, p.into());
                 // Zero where it cannot be stated (as in a v1 recording).
                 let covariance = cal.uncertainty.located_covariance(&cal.mirror_cameras, &p);

@@ -608,7 +608,8 @@ pub fn calibrate_placements(
     };
     for _ in 0..rounds {
         let fitted = kept.iter().filter(|k| **k).count();
-        let keep = consistent(&errors, 4 * fitted, cal.parameters);
+        let views: Vec<View> = obs.iter().map(|o| o.view).collect();
+        let keep = consistent(&errors, &views, 4 * fitted, cal.parameters);
         let count = keep.iter().filter(|k| **k).count();
         // Setting aside more than a third is not outliers but a model that
         // does not fit (judged below), and too few left cannot be solved.
@@ -817,19 +818,47 @@ fn squared_errors(rig: &Rig, obs: &[Observation], cal: &Calibration) -> Vec<f64>
 /// Which samples are consistent with the noise the samples show, from a fit
 /// of `parameters` to `residuals` coordinates: fitted residuals are smaller
 /// than the noise by `(m - p) / m` on average, which the scale undoes.
-fn consistent(errors: &[f64], residuals: usize, parameters: usize) -> Vec<bool> {
-    let mut sorted = errors.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    let Some(&median) = sorted.get(sorted.len() / 2) else {
+/// Mirror and direct views are each judged against their own kind's noise
+/// where there are enough of them: a direct view is nearer and its marker
+/// larger, and its detections are noisier (on renders, 0.2-0.4 px against
+/// the mirror views' 0.08).
+fn consistent(errors: &[f64], views: &[View], residuals: usize, parameters: usize) -> Vec<bool> {
+    let median = |of: &dyn Fn(View) -> bool| {
+        let mut sorted: Vec<f64> = errors
+            .iter()
+            .zip(views)
+            .filter(|(_, v)| of(**v))
+            .map(|(e, _)| *e)
+            .collect();
+        sorted.sort_by(f64::total_cmp);
+        (sorted.len() >= OWN_NOISE_SCALE_FROM).then(|| sorted[sorted.len() / 2])
+    };
+    let Some(pooled) = median(&|_| true).or_else(|| {
+        let mut all = errors.to_vec();
+        all.sort_by(f64::total_cmp);
+        all.get(all.len() / 2).copied()
+    }) else {
         return Vec::new();
     };
     let shrink = residuals as f64 / residuals.saturating_sub(parameters).max(1) as f64;
-    let sigma_squared = (median / CHI2_4_MEDIAN * shrink).max(MIN_NOISE_PX * MIN_NOISE_PX);
+    let bound = |median: f64| {
+        CHI2_4_999 * (median / CHI2_4_MEDIAN * shrink).max(MIN_NOISE_PX * MIN_NOISE_PX)
+    };
+    let mirror = bound(median(&|v| v == View::Mirror).unwrap_or(pooled));
+    let direct = bound(median(&|v| v == View::Direct).unwrap_or(pooled));
     errors
         .iter()
-        .map(|e| *e <= CHI2_4_999 * sigma_squared)
+        .zip(views)
+        .map(|(e, v)| match v {
+            View::Mirror => *e <= mirror,
+            View::Direct => *e <= direct,
+        })
         .collect()
 }
+
+/// Fewest samples of one view kind whose median sets that kind's noise
+/// scale in the outlier test.
+const OWN_NOISE_SCALE_FROM: usize = 5;
 
 /// One least-squares calibration of `obs` (from `placements` placements)
 /// with `method`, checked.
