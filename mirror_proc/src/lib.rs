@@ -16,6 +16,7 @@
 //! ```
 
 pub mod calibrate;
+pub mod drift;
 pub mod evaluate;
 pub mod experiment;
 pub mod export;

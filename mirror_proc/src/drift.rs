@@ -1,0 +1,163 @@
+//! Has the world changed under a calibration? Every new sample is a fresh
+//! test of it: its reprojection error in each camera, over what the
+//! calibration expects (the fit's residual noise), is chi-square with 2
+//! degrees of freedom while nothing has changed. Four one-sided CUSUMs,
+//! one per view (mirror, direct) and camera, add up how far each sample's
+//! error exceeds that; one exceeding a threshold is a change. A sample's
+//! part is capped, so one wrong pairing cannot raise the alarm on its own.
+//!
+//! What moved follows from where the errors grew: a moved mirror shows in
+//! both cameras' mirror views (and not in direct views); a knocked camera
+//! in its own errors only, mirror and direct; both cameras' direct views,
+//! the head or the arm as a whole.
+
+use geometry::{Rig, Sample, View};
+
+use crate::calibrate::Calibration;
+
+/// Allowance per sample, in units of the expected error (the mean of
+/// chi-square 2 over 2 is 1): a sample must exceed it to add up.
+const ALLOWANCE: f64 = 2.0;
+/// What the CUSUM must reach to call a change.
+const THRESHOLD: f64 = 12.0;
+/// Most one sample adds: two consecutive bad samples are needed.
+const CAP: f64 = THRESHOLD * 0.75;
+
+/// What a change is put down to.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Moved {
+    /// The mirror (mirror views grew, direct views did not, or none seen).
+    Mirror,
+    /// A head camera, by name (its own errors grew, in direct views too).
+    Camera(String),
+    /// Both cameras' direct views grew: the arm or the whole head.
+    Head,
+}
+
+/// A change found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Drift {
+    /// What moved.
+    pub moved: Moved,
+    /// The pose of the first sample of the run of errors that raised the
+    /// alarm: where the change began.
+    pub began_at_pose: u64,
+    /// The pose at which it was called.
+    pub found_at_pose: u64,
+}
+
+/// One CUSUM and where its current run began.
+#[derive(Debug, Clone, Copy, Default)]
+struct Cusum {
+    sum: f64,
+    began_at: Option<u64>,
+}
+
+impl Cusum {
+    fn push(&mut self, pose: u64, z: f64) {
+        self.sum = (self.sum + z.min(CAP) - ALLOWANCE).max(0.0);
+        if self.sum == 0.0 {
+            self.began_at = None;
+        } else if self.began_at.is_none() {
+            self.began_at = Some(pose);
+        }
+    }
+
+    fn alarmed(&self) -> bool {
+        self.sum >= THRESHOLD
+    }
+}
+
+/// Watches new samples against one calibration.
+#[derive(Debug, Clone)]
+pub struct DriftMonitor {
+    /// Expected error variance per pixel coordinate, px^2.
+    variance: f64,
+    /// Mirror-view and direct-view CUSUMs, left and right camera.
+    mirror: [Cusum; 2],
+    direct: [Cusum; 2],
+    found: Option<Drift>,
+}
+
+impl DriftMonitor {
+    /// A monitor for `cal`, whose samples are expected to fit to its own
+    /// residual noise, but not below `min_sigma_px` (the tracker's).
+    pub fn new(cal: &Calibration, min_sigma_px: f64) -> Self {
+        let sigma = cal.uncertainty.residual_px.max(min_sigma_px);
+        // A new sample also carries the calibration's own error: on
+        // average a share p/m of the noise.
+        let residuals = 4 * (cal.samples + cal.direct_samples);
+        let share = cal.parameters as f64 / residuals.max(1) as f64;
+        Self {
+            variance: sigma * sigma * (1.0 + share),
+            mirror: Default::default(),
+            direct: Default::default(),
+            found: None,
+        }
+    }
+
+    /// Scores one new sample under `cal` (made with `rig`); returns the
+    /// change once found (and again for every later sample).
+    pub fn push(&mut self, rig: &Rig, cal: &Calibration, sample: &Sample) -> Option<&Drift> {
+        if self.found.is_some() {
+            return self.found.as_ref();
+        }
+        // A sample that cannot be scored says nothing.
+        let errors = reprojection_errors(rig, cal, sample)?;
+        let sums = match sample.view {
+            View::Mirror => &mut self.mirror,
+            View::Direct => &mut self.direct,
+        };
+        for (k, e) in errors.iter().enumerate() {
+            sums[k].push(sample.pose, e / (2.0 * self.variance));
+        }
+        // The first camera whose errors add up: a moved mirror shows in
+        // both cameras' mirror views, a knocked camera in its own only.
+        let k = (0..2).find(|&k| self.mirror[k].alarmed() || self.direct[k].alarmed())?;
+        let other = 1 - k;
+        let raised = |c: &Cusum| c.sum > THRESHOLD / 3.0;
+        let moved = if self.direct[k].alarmed() && raised(&self.direct[other]) {
+            Moved::Head
+        } else if self.mirror[k].alarmed() && raised(&self.mirror[other]) {
+            Moved::Mirror
+        } else {
+            Moved::Camera(rig.names[k].clone())
+        };
+        let began_at_pose = self
+            .mirror
+            .iter()
+            .chain(&self.direct)
+            .filter(|c| c.alarmed())
+            .filter_map(|c| c.began_at)
+            .min()
+            .unwrap_or(sample.pose);
+        self.found = Some(Drift {
+            moved,
+            began_at_pose,
+            found_at_pose: sample.pose,
+        });
+        self.found.as_ref()
+    }
+}
+
+/// The squared reprojection error of `sample` in each camera under `cal`,
+/// px^2: its marker point (with the calibration's offsets, base and tool)
+/// through the mirror cameras of its first placement, or the real cameras
+/// for a direct view.
+fn reprojection_errors(rig: &Rig, cal: &Calibration, sample: &Sample) -> Option<[f64; 2]> {
+    let rig = cal.corrected_rig(rig);
+    let point = match (&rig.arm, &sample.joints) {
+        (Some(arm), Some(q)) => arm
+            .end_effector(q, cal.joint_offsets.as_deref().unwrap_or_default())
+            .ok()?,
+        _ => sample.model_point?,
+    };
+    let cameras = match sample.view {
+        View::Mirror => &cal.mirror_cameras,
+        View::Direct => &rig.cameras,
+    };
+    let error = |k: usize| -> Option<f64> {
+        Some((cameras[k].project(&point).ok()? - sample.pixels[k]).norm_squared())
+    };
+    Some([error(0)?, error(1)?])
+}
