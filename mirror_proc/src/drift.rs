@@ -13,7 +13,7 @@
 
 use geometry::{Rig, Sample, View};
 
-use crate::calibrate::Calibration;
+use crate::calibrate::{Calibration, Seen, camera_errors, model_point};
 
 /// Allowance per sample, in units of the expected error (the mean of
 /// chi-square 2 over 2 is 1): a sample must exceed it to add up.
@@ -71,6 +71,10 @@ impl Cusum {
 /// Watches new samples against one calibration.
 #[derive(Debug, Clone)]
 pub struct DriftMonitor {
+    /// The calibration watched.
+    calibration: Calibration,
+    /// The rig as the calibration corrected it.
+    rig: Rig,
     /// Expected error variance per pixel coordinate, px^2.
     variance: f64,
     /// Mirror-view and direct-view CUSUMs, left and right camera.
@@ -80,15 +84,18 @@ pub struct DriftMonitor {
 }
 
 impl DriftMonitor {
-    /// A monitor for `cal`, whose samples are expected to fit to its own
-    /// residual noise, but not below `min_sigma_px` (the tracker's).
-    pub fn new(cal: &Calibration, min_sigma_px: f64) -> Self {
+    /// A monitor for `cal` (made with `rig`), whose samples are expected to
+    /// fit to its own residual noise, but not below `min_sigma_px` (the
+    /// tracker's).
+    pub fn new(rig: &Rig, cal: Calibration, min_sigma_px: f64) -> Self {
         let sigma = cal.uncertainty.residual_px.max(min_sigma_px);
         // A new sample also carries the calibration's own error: on
         // average a share p/m of the noise.
         let residuals = 4 * (cal.samples + cal.direct_samples);
         let share = cal.parameters as f64 / residuals.max(1) as f64;
         Self {
+            rig: cal.corrected_rig(rig),
+            calibration: cal,
             variance: sigma * sigma * (1.0 + share),
             mirror: Default::default(),
             direct: Default::default(),
@@ -96,14 +103,22 @@ impl DriftMonitor {
         }
     }
 
-    /// Scores one new sample under `cal` (made with `rig`); returns the
-    /// change once found (and again for every later sample).
-    pub fn push(&mut self, rig: &Rig, cal: &Calibration, sample: &Sample) -> Option<&Drift> {
+    /// Scores one new sample (of the calibration's first placement, or a
+    /// direct view); returns the change once found (and again for every
+    /// later sample).
+    pub fn push(&mut self, sample: &Sample) -> Option<&Drift> {
         if self.found.is_some() {
             return self.found.as_ref();
         }
+        let seen = Seen {
+            placement: 0,
+            view: sample.view,
+            joints: sample.joints.as_deref(),
+            model_point: model_point(&self.rig, sample, None).ok(),
+            pixels: &sample.pixels,
+        };
         // A sample that cannot be scored says nothing.
-        let errors = reprojection_errors(rig, cal, sample)?;
+        let errors = camera_errors(&self.calibration, &self.rig, &seen)?;
         let sums = match sample.view {
             View::Mirror => &mut self.mirror,
             View::Direct => &mut self.direct,
@@ -121,7 +136,7 @@ impl DriftMonitor {
         } else if self.mirror[k].alarmed() && raised(&self.mirror[other]) {
             Moved::Mirror
         } else {
-            Moved::Camera(rig.names[k].clone())
+            Moved::Camera(self.rig.names[k].clone())
         };
         let began_at_pose = self
             .mirror
@@ -138,26 +153,4 @@ impl DriftMonitor {
         });
         self.found.as_ref()
     }
-}
-
-/// The squared reprojection error of `sample` in each camera under `cal`,
-/// px^2: its marker point (with the calibration's offsets, base and tool)
-/// through the mirror cameras of its first placement, or the real cameras
-/// for a direct view.
-fn reprojection_errors(rig: &Rig, cal: &Calibration, sample: &Sample) -> Option<[f64; 2]> {
-    let rig = cal.corrected_rig(rig);
-    let point = match (&rig.arm, &sample.joints) {
-        (Some(arm), Some(q)) => arm
-            .end_effector(q, cal.joint_offsets.as_deref().unwrap_or_default())
-            .ok()?,
-        _ => sample.model_point?,
-    };
-    let cameras = match sample.view {
-        View::Mirror => &cal.mirror_cameras,
-        View::Direct => &rig.cameras,
-    };
-    let error = |k: usize| -> Option<f64> {
-        Some((cameras[k].project(&point).ok()? - sample.pixels[k]).norm_squared())
-    };
-    Some([error(0)?, error(1)?])
 }

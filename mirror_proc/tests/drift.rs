@@ -71,9 +71,9 @@ fn detect(
     before: &[Sample],
     after: &[Sample],
 ) -> Option<(usize, Moved)> {
-    let mut monitor = DriftMonitor::new(cal, PIXEL_SIGMA);
+    let mut monitor = DriftMonitor::new(&d.rig, cal.clone(), PIXEL_SIGMA);
     for s in before {
-        if let Some(drift) = monitor.push(&d.rig, cal, s) {
+        if let Some(drift) = monitor.push(s) {
             panic!(
                 "false alarm before the change at pose {}: {drift:?}",
                 s.pose
@@ -81,7 +81,7 @@ fn detect(
         }
     }
     for (i, s) in after.iter().enumerate() {
-        if let Some(drift) = monitor.push(&d.rig, cal, s) {
+        if let Some(drift) = monitor.push(s) {
             return Some((i + 1, drift.moved.clone()));
         }
     }

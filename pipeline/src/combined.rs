@@ -44,8 +44,8 @@ pub struct PlaneErrors {
     pub plane_distance_mm: f64,
 }
 
-/// The training and direct samples of the journal at `path`, with the
-/// true marker position of each from `truth` (by pose id).
+/// The training and direct samples of the journal at `path`, their `J`
+/// left to the arm being corrected.
 fn journaled(path: &Path) -> Result<Vec<Sample>> {
     let recovered = runtime::journal::read(path).with_context(|| format!("{}", path.display()))?;
     Ok(recovered

@@ -208,7 +208,10 @@ fn base_and_tool_are_recovered_on_real_arms_with_honest_sigmas() {
             direct: 10,
         };
         let mut worst = [0.0f64; 3];
-        let mut z: [Vec<f64>; 3] = Default::default();
+        let mut z = ["base rotation", "base position", "tool"].map(|what| Coverage {
+            name: what.into(),
+            normalised: Vec::new(),
+        });
         for seed in 0..SEEDS {
             let sets: Vec<Vec<Sample>> = (0..3)
                 .map(|m| {
@@ -267,13 +270,10 @@ fn base_and_tool_are_recovered_on_real_arms_with_honest_sigmas() {
             ];
             for k in 0..3 {
                 worst[k] = worst[k].max(errors[k]);
-                z[k].push(errors[k] / sigmas[k]);
+                z[k].normalised.push(errors[k] / sigmas[k]);
             }
         }
-        let rms: Vec<f64> = z
-            .iter()
-            .map(|v| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
-            .collect();
+        let rms = z.each_ref().map(Coverage::rms);
         println!(
             "{name}: worst base {:.4} deg {:.3} mm, tool {:.3} mm; RMS of error / sigma {:.2} {:.2} {:.2}",
             worst[0], worst[1], worst[2], rms[0], rms[1], rms[2]

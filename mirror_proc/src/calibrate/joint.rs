@@ -178,6 +178,21 @@ impl Layout {
     }
 }
 
+/// A chart centred on each of `planes`, and the parameter vector of
+/// `layout` that puts every plane where it is (zero tilts, its distance;
+/// everything else zero).
+fn charts_at(planes: &[Plane], layout: &Layout) -> (Vec<PlaneChart>, DVector<f64>) {
+    let charts = planes
+        .iter()
+        .map(|p| PlaneChart::at(p.normal.into_inner()))
+        .collect();
+    let mut x = DVector::zeros(layout.len());
+    for (p, plane) in planes.iter().enumerate() {
+        x[3 * p + 2] = plane.distance;
+    }
+    (charts, x)
+}
+
 /// The planes at `x`, one per placement.
 fn planes(charts: &[PlaneChart], x: &[f64]) -> Result<Vec<Plane>, GeometryError> {
     charts
@@ -236,14 +251,7 @@ pub(super) fn calibrate(
     prior_sigma: Option<f64>,
 ) -> Result<Calibration, CalibrateError> {
     let layout = Layout::new(rig, starts.len(), with_kinematics, estimate);
-    let start_charts: Vec<PlaneChart> = starts
-        .iter()
-        .map(|p| PlaneChart::at(p.normal.into_inner()))
-        .collect();
-    let mut x0 = DVector::zeros(layout.len());
-    for (p, start) in starts.iter().enumerate() {
-        x0[3 * p + 2] = start.distance;
-    }
+    let (start_charts, x0) = charts_at(starts, &layout);
     let (x, _) = lsq::minimize(x0, |x| residuals(rig, obs, &start_charts, &layout, x))?;
     let solved = planes(&start_charts, x.as_slice())?;
     for plane in &solved {
@@ -345,14 +353,7 @@ fn uncertainty(
     solved_residuals: &DVector<f64>,
     prior_sigma: f64,
 ) -> Result<Uncertainty, CalibrateError> {
-    let charts_here: Vec<PlaneChart> = planes
-        .iter()
-        .map(|p| PlaneChart::at(p.normal.into_inner()))
-        .collect();
-    let mut y = DVector::zeros(layout.len());
-    for (p, plane) in planes.iter().enumerate() {
-        y[3 * p + 2] = plane.distance;
-    }
+    let (charts_here, mut y) = charts_at(planes, layout);
     let offsets = offsets.unwrap_or_default();
     for (i, &j) in layout.free_offsets.iter().enumerate() {
         y[layout.offsets_at() + i] = offsets[j];

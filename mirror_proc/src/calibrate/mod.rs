@@ -791,28 +791,63 @@ const MIN_NOISE_PX: f64 = 1e-3;
 /// cameras); infinite where the model point does not project.
 fn squared_errors(rig: &Rig, obs: &[Observation], cal: &Calibration) -> Vec<f64> {
     let rig = cal.corrected_rig(rig);
-    let arm = rig.arm.as_ref().filter(|_| cal.uses_arm());
-    let offsets = cal.joint_offsets.as_deref().unwrap_or_default();
     obs.iter()
         .map(|o| {
-            let point = match (arm, &o.joints) {
-                (Some(arm), Some(q)) => arm.end_effector(q, offsets).ok(),
-                _ => Some(o.model_point),
+            let seen = Seen {
+                placement: o.placement,
+                view: o.view,
+                joints: o.joints.as_deref(),
+                model_point: Some(o.model_point),
+                pixels: &o.pixels,
             };
-            let cameras = match o.view {
-                View::Mirror => cal.placements.get(o.placement).map(|p| &p.mirror_cameras),
-                View::Direct => Some(&rig.cameras),
-            };
-            let error = |k: usize| {
-                let (p, cameras) = (point?, cameras?);
-                Some((cameras[k].project(&p).ok()? - o.pixels[k]).norm_squared())
-            };
-            match (error(0), error(1)) {
-                (Some(a), Some(b)) if (a + b).is_finite() => a + b,
+            match camera_errors(cal, &rig, &seen) {
+                Some([a, b]) if (a + b).is_finite() => a + b,
                 _ => f64::INFINITY,
             }
         })
         .collect()
+}
+
+/// A sample as [`camera_errors`] scores it.
+pub(crate) struct Seen<'a> {
+    /// Its mirror placement.
+    pub placement: usize,
+    /// Seen in the mirror or directly.
+    pub view: View,
+    /// Its joint readings, if any.
+    pub joints: Option<&'a [f64]>,
+    /// Its end-effector model point `J`, if known without the arm.
+    pub model_point: Option<Vector3<f64>>,
+    /// Its detections, left then right.
+    pub pixels: &'a [Vector2<f64>; 2],
+}
+
+/// The squared reprojection error (px^2) in each camera of `seen` under
+/// `cal`, with `corrected` the rig as `cal` corrected it
+/// ([`Calibration::corrected_rig`]): its marker point (from the arm where
+/// `cal` models it, else its model point) through its placement's mirror
+/// cameras, or the real cameras for a direct view. `None` where the point
+/// is unknown or does not project.
+pub(crate) fn camera_errors(
+    cal: &Calibration,
+    corrected: &Rig,
+    seen: &Seen<'_>,
+) -> Option<[f64; 2]> {
+    let arm = corrected.arm.as_ref().filter(|_| cal.uses_arm());
+    let point = match (arm, seen.joints) {
+        (Some(arm), Some(q)) => arm
+            .end_effector(q, cal.joint_offsets.as_deref().unwrap_or_default())
+            .ok()?,
+        _ => seen.model_point?,
+    };
+    let cameras = match seen.view {
+        View::Mirror => &cal.placements.get(seen.placement)?.mirror_cameras,
+        View::Direct => &corrected.cameras,
+    };
+    let error = |k: usize| -> Option<f64> {
+        Some((cameras[k].project(&point).ok()? - seen.pixels[k]).norm_squared())
+    };
+    Some([error(0)?, error(1)?])
 }
 
 /// Which samples are consistent with the noise the samples show, from a fit
