@@ -68,6 +68,27 @@ pub struct CameraPose {
     pub center: [f64; 3],
 }
 
+/// A head camera found again after it was knocked: its pose now, which
+/// replaces the rig's (`head_cameras` of a calibration).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HeadCameraEntry {
+    /// The rig's name of the camera.
+    pub name: String,
+    /// Row-major `R` (camera from world), as found.
+    pub camera_from_world: [f64; 9],
+    /// Centre in world, mm (kept: only the turn is found).
+    pub center: [f64; 3],
+    /// How far it turned from the rig's pose, deg.
+    pub turn_deg: f64,
+    /// The 1-sigma of its orientation about its own x (tilt), y (pan) and
+    /// z (optical) axes, deg.
+    pub sigma_deg: [f64; 3],
+    /// Direct views it was found from.
+    pub views: usize,
+    /// The pose at which it moved.
+    pub moved_at_pose: u64,
+}
+
 /// A calibration's 1-sigma uncertainty (see the module's documentation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct UncertaintyEntry {
@@ -207,6 +228,10 @@ pub struct CalibrationFile {
     /// rig's `tool`, which it replaces.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tool: Option<[f64; 3]>,
+    /// Head cameras found again after they moved (the live stage's drift
+    /// watch): each replaces the rig's camera of its name.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub head_cameras: Vec<HeadCameraEntry>,
 }
 
 fn is_zero(n: &usize) -> bool {
@@ -261,6 +286,7 @@ impl CalibrationFile {
             placements: Vec::new(),
             world_from_base: None,
             tool: None,
+            head_cameras: Vec::new(),
         }
     }
 
@@ -299,11 +325,39 @@ impl CalibrationFile {
         self
     }
 
+    /// With the head cameras found again after they moved.
+    pub fn with_head_cameras(mut self, cameras: Vec<HeadCameraEntry>) -> Self {
+        self.head_cameras = cameras;
+        self
+    }
+
     /// The rig with the calibration's estimated base and tool in its arm
-    /// (unchanged where the calibration estimated neither); `path` names
-    /// the calibration in errors.
+    /// and its head cameras found again (unchanged where the calibration
+    /// found none of them); `path` names the calibration in errors.
     pub fn corrected_rig(&self, path: &Path, rig: &Rig) -> Result<Rig, FormatError> {
         let mut rig = rig.clone();
+        for (i, found) in self.head_cameras.iter().enumerate() {
+            let key = format!("head_cameras[{i}]");
+            let k = rig
+                .names
+                .iter()
+                .position(|n| *n == found.name)
+                .ok_or_else(|| {
+                    FormatError::at_key(
+                        path,
+                        &key,
+                        format!(
+                            "names camera `{}`, which the rig does not have ({} and {})",
+                            found.name, rig.names[0], rig.names[1]
+                        ),
+                    )
+                })?;
+            let r = mat3(&found.camera_from_world);
+            check_rotation(path, &format!("{key}.camera_from_world"), &r, false)?;
+            check_finite(path, &format!("{key}.center"), &found.center)?;
+            rig.cameras[k].camera_from_world = r;
+            rig.cameras[k].center = Vector3::from(found.center);
+        }
         if let Some(arm) = rig.arm.as_mut() {
             if let Some(m) = &self.world_from_base {
                 arm.world_from_base = crate::parse_pose(path, "world_from_base", m)?;

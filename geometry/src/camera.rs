@@ -155,6 +155,15 @@ impl Camera {
         }
     }
 
+    /// This camera turned by the rotation vector `w` (rad) about its own
+    /// axes (x right, y down, z forward), its centre kept: `R' = exp(w) R`.
+    pub fn turned(&self, w: &Vector3<f64>) -> Self {
+        Self {
+            camera_from_world: nalgebra::Rotation3::new(*w).matrix() * self.camera_from_world,
+            ..*self
+        }
+    }
+
     /// World point to camera coordinates `R (X - C)`.
     pub fn to_camera(&self, world: &Vector3<f64>) -> Vector3<f64> {
         self.camera_from_world * (world - self.center)

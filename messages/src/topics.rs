@@ -176,6 +176,11 @@ impl TopicId {
 /// zero means "not stated" in every appended field.
 const LEGACY_LAYOUTS: &[(TopicId, &str, usize)] = &[
     (TopicId::Calibration, "mirror.Calibration.v1", 328),
+    (
+        TopicId::Calibration,
+        "mirror.Calibration.v2",
+        std::mem::offset_of!(crate::CalibrationMsg, epoch),
+    ),
     (TopicId::Located, "mirror.LocatedObject.v1", 48),
 ];
 
@@ -444,10 +449,13 @@ mod tests {
             std::mem::offset_of!(crate::LocatedObject, covariance_mm2),
             48
         );
-        let v1 = |topic: TopicId| Layout {
-            type_name: topic.layout().type_name.replace(".v2", ".v1"),
-            size: LEGACY_LAYOUTS.iter().find(|l| l.0 == topic).unwrap().2,
-            ..topic.layout()
+        let v1 = |topic: TopicId| {
+            let name = topic.layout().type_name.replace(".v2", ".v1");
+            Layout {
+                type_name: name.replace(".v3", ".v1"),
+                size: LEGACY_LAYOUTS.iter().find(|l| l.0 == topic).unwrap().2,
+                ..topic.layout()
+            }
         };
         let located = crate::LocatedObject {
             stamp_ns: 5,
@@ -480,12 +488,44 @@ mod tests {
         );
         let unknown = Layout {
             type_name: "mirror.Calibration.v0".into(),
-            ..calibration_v1
+            ..calibration_v1.clone()
         };
         let why = TopicId::Calibration.recorded_as(&unknown).unwrap_err();
         assert!(
-            why.contains("mirror.Calibration.v0") && why.contains("v2"),
+            why.contains("mirror.Calibration.v0") && why.contains("v3"),
             "{why}"
+        );
+        // A v2 recording: the epoch reads zero (not stated).
+        let v2_size = std::mem::offset_of!(crate::CalibrationMsg, epoch);
+        let calibration_v2 = Layout {
+            type_name: "mirror.Calibration.v2".into(),
+            size: v2_size,
+            ..calibration_v1
+        };
+        assert_eq!(
+            TopicId::Calibration.recorded_as(&calibration_v2),
+            Ok(Some(v2_size))
+        );
+        let current = crate::CalibrationMsg {
+            revision: 4,
+            epoch: crate::CalibrationEpoch {
+                epoch: 2,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let read = Message::decode_legacy(
+            TopicId::Calibration,
+            &bytemuck::bytes_of(&current)[..v2_size],
+            v2_size,
+        )
+        .unwrap();
+        assert_eq!(
+            read,
+            Message::Calibration(crate::CalibrationMsg {
+                epoch: Default::default(),
+                ..current
+            })
         );
         assert!(
             TopicId::Samples

@@ -436,10 +436,83 @@ pub struct CalibrationUncertainty {
 /// on the wire: messages are compared bit for bit).
 pub const UNDETERMINED: f64 = -1.0;
 
-/// A calibration of the mirror cameras. v2 appended `uncertainty` to v1;
-/// a v1 recording reads with it zero (not stated).
+/// Whether a calibration still holds: the world it was made in may have
+/// changed under it (a moved mirror, a knocked camera). All zero in a
+/// recording made before v3: epoch 0, not stated.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
-#[type_name("mirror.Calibration.v2")]
+#[type_name("mirror.CalibrationEpoch.v1")]
+#[repr(C)]
+pub struct CalibrationEpoch {
+    /// Which calibration of an unchanged world this is, from 1; a change
+    /// found starts the next once it is calibrated again. 0: not stated.
+    pub epoch: u32,
+    /// [`EpochState`].
+    pub state: u32,
+    /// [`Moved`]: what changed (for a drifted calibration, and for an epoch
+    /// after the first, what ended the one before).
+    pub moved: u32,
+    /// The camera that moved (0 left, 1 right), for [`Moved::Camera`].
+    pub camera: u32,
+    /// The pose at which the epoch began (0 for the first); for a drifted
+    /// calibration, the pose at which the change began.
+    pub began_at_pose: u64,
+    /// For a drifted calibration, the pose at which the change was found.
+    pub found_at_pose: u64,
+}
+
+/// The state of a calibration ([`CalibrationEpoch::state`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum EpochState {
+    /// It holds, as far as the samples show.
+    Calibrated = 0,
+    /// The world changed under it: what it says is no longer true; the
+    /// stage calibrates again from the samples that follow.
+    Drifted = 1,
+    /// The world changed and cannot be calibrated again from what the
+    /// plan gives (a camera moved, and no direct view came to find it).
+    Stopped = 2,
+}
+
+/// What changed under a calibration ([`CalibrationEpoch::moved`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum Moved {
+    /// Nothing (the first epoch).
+    Nothing = 0,
+    /// The mirror.
+    Mirror = 1,
+    /// One head camera ([`CalibrationEpoch::camera`]).
+    Camera = 2,
+    /// Both cameras as one: the head (or the arm's base).
+    Head = 3,
+}
+
+impl CalibrationEpoch {
+    /// The state, if valid.
+    pub fn state(&self) -> Option<EpochState> {
+        [
+            EpochState::Calibrated,
+            EpochState::Drifted,
+            EpochState::Stopped,
+        ]
+        .into_iter()
+        .find(|s| *s as u32 == self.state)
+    }
+
+    /// What moved, if valid.
+    pub fn moved(&self) -> Option<Moved> {
+        [Moved::Nothing, Moved::Mirror, Moved::Camera, Moved::Head]
+            .into_iter()
+            .find(|m| *m as u32 == self.moved)
+    }
+}
+
+/// A calibration of the mirror cameras. v2 appended `uncertainty` to v1,
+/// v3 `epoch` to v2; a recording of an earlier version reads with them
+/// zero (not stated).
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[type_name("mirror.Calibration.v3")]
 #[repr(C)]
 pub struct CalibrationMsg {
     /// Stamp of the newest sample used, ns.
@@ -464,6 +537,8 @@ pub struct CalibrationMsg {
     pub train_rms_px: f64,
     /// What it is known to.
     pub uncertainty: CalibrationUncertainty,
+    /// Whether it still holds, and which epoch it belongs to.
+    pub epoch: CalibrationEpoch,
 }
 
 /// A test sample's prediction through the current calibration.
@@ -635,8 +710,16 @@ const _: () = {
     assert!(size_of::<CalibrationUncertainty>() == 16 + 3 * 8 + 8 * MAX_JOINTS + 4 * 8);
     assert!(
         size_of::<CalibrationMsg>()
-            == 16 + 16 + 32 + 2 * 96 + 8 * MAX_JOINTS + 8 + size_of::<CalibrationUncertainty>()
+            == 16
+                + 16
+                + 32
+                + 2 * 96
+                + 8 * MAX_JOINTS
+                + 8
+                + size_of::<CalibrationUncertainty>()
+                + size_of::<CalibrationEpoch>()
     );
+    assert!(size_of::<CalibrationEpoch>() == 16 + 16);
     assert!(size_of::<Prediction>() == 24 + 8 + 24 + 24 + 32 + 16);
     assert!(size_of::<LocatedObject>() == 16 + 8 + 24 + 48);
     assert!(size_of::<JointPositions>() == 8 * 2 + 4 * 2 + 8 * MAX_JOINTS);

@@ -359,12 +359,14 @@ fn run(cli: Cli) -> Result<()> {
             settle_ms,
             report,
             journal,
+            no_drift_watch,
         }) => {
             let rig_model = read_rig(&rig)?;
             let config = mirror_proc::live::LiveConfig {
                 method,
                 min_train,
                 settle_margin_ns: settle_ms * 1_000_000,
+                watch_drift: !no_drift_watch,
                 ..Default::default()
             };
             let result =

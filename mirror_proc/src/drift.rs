@@ -46,11 +46,18 @@ pub struct Drift {
     pub found_at_pose: u64,
 }
 
+/// A sample's score from which it is taken for the first of a change:
+/// one in 90 of an unchanged world's reaches it.
+const CHANGED_FROM: f64 = CAP / 2.0;
+
 /// One CUSUM and where its current run began.
 #[derive(Debug, Clone, Copy, Default)]
 struct Cusum {
     sum: f64,
+    /// The first sample of the run, and the first in it scoring
+    /// [`CHANGED_FROM`] or more.
     began_at: Option<u64>,
+    changed_at: Option<u64>,
 }
 
 impl Cusum {
@@ -58,9 +65,19 @@ impl Cusum {
         self.sum = (self.sum + z.min(CAP) - ALLOWANCE).max(0.0);
         if self.sum == 0.0 {
             self.began_at = None;
-        } else if self.began_at.is_none() {
-            self.began_at = Some(pose);
+            self.changed_at = None;
+            return;
         }
+        self.began_at.get_or_insert(pose);
+        if z >= CHANGED_FROM {
+            self.changed_at.get_or_insert(pose);
+        }
+    }
+
+    /// Where the change began: a run is often started a sample early by
+    /// noise just above the allowance, so its first large score is taken.
+    fn change_point(&self) -> Option<u64> {
+        self.changed_at.or(self.began_at)
     }
 
     fn alarmed(&self) -> bool {
@@ -88,27 +105,43 @@ impl DriftMonitor {
     /// fit to its own residual noise, but not below `min_sigma_px` (the
     /// tracker's).
     pub fn new(rig: &Rig, cal: Calibration, min_sigma_px: f64) -> Self {
+        let mut monitor = Self {
+            rig: rig.clone(),
+            calibration: cal,
+            variance: 0.0,
+            mirror: Default::default(),
+            direct: Default::default(),
+            found: None,
+        };
+        monitor.watch(rig, monitor.calibration.clone(), min_sigma_px);
+        monitor
+    }
+
+    /// Watches `cal`, a newer calibration of the same world (made with
+    /// `rig`), from the next sample on; what the samples so far have
+    /// added up is kept.
+    pub fn watch(&mut self, rig: &Rig, cal: Calibration, min_sigma_px: f64) {
         let sigma = cal.uncertainty.residual_px.max(min_sigma_px);
         // A new sample also carries the calibration's own error: on
         // average a share p/m of the noise.
         let residuals = 4 * (cal.samples + cal.direct_samples);
         let share = cal.parameters as f64 / residuals.max(1) as f64;
-        Self {
-            rig: cal.corrected_rig(rig),
-            calibration: cal,
-            variance: sigma * sigma * (1.0 + share),
-            mirror: Default::default(),
-            direct: Default::default(),
-            found: None,
-        }
+        self.rig = cal.corrected_rig(rig);
+        self.variance = sigma * sigma * (1.0 + share);
+        self.calibration = cal;
     }
 
     /// Scores one new sample (of the calibration's first placement, or a
     /// direct view); returns the change once found (and again for every
-    /// later sample).
+    /// later sample). Direct views are scored only against a calibration
+    /// that holds some: one made from mirror views alone predicts them to
+    /// its encoder offsets' accuracy, not to the tracker's noise.
     pub fn push(&mut self, sample: &Sample) -> Option<&Drift> {
         if self.found.is_some() {
             return self.found.as_ref();
+        }
+        if sample.view == View::Direct && self.calibration.direct_samples == 0 {
+            return None;
         }
         let seen = Seen {
             placement: 0,
@@ -143,7 +176,7 @@ impl DriftMonitor {
             .iter()
             .chain(&self.direct)
             .filter(|c| c.alarmed())
-            .filter_map(|c| c.began_at)
+            .filter_map(Cusum::change_point)
             .min()
             .unwrap_or(sample.pose);
         self.found = Some(Drift {

@@ -17,6 +17,7 @@
 
 pub mod calibrate;
 pub mod drift;
+pub mod epochs;
 pub mod evaluate;
 pub mod experiment;
 pub mod export;

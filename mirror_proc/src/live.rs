@@ -20,14 +20,17 @@ use formats::evaluation::Evaluation;
 use geometry::triangulate::triangulate;
 use geometry::{Rig, Sample};
 use messages::{
-    CalibrationMsg, CalibrationUncertainty, CameraPose, JointState, LocatedObject, MAX_JOINTS,
-    MirrorSample, Phase, Prediction, Role, StereoDetections, UNDETERMINED,
+    CalibrationEpoch, CalibrationMsg, CalibrationUncertainty, CameraPose, EpochState, JointState,
+    LocatedObject, MAX_JOINTS, MirrorSample, Phase, Prediction, Role, StereoDetections,
+    UNDETERMINED,
 };
 use nalgebra::{Matrix3, Vector2};
 use runtime::Rejections;
 use serde::{Deserialize, Serialize};
 
-use crate::calibrate::{Calibration, Fit, Method, calibrate};
+use crate::calibrate::{CalibrateOptions, Calibration, Fit, Method, calibrate_with};
+use crate::drift::{Drift, DriftMonitor, Moved};
+use crate::epochs::{self, CAMERA_VIEWS, EpochReport};
 use crate::evaluate::evaluate;
 
 /// Settings of the live stage.
@@ -41,6 +44,9 @@ pub struct LiveConfig {
     pub min_train: usize,
     /// Time after a pose settles before a frame may be paired with it, ns.
     pub settle_margin_ns: i64,
+    /// Watch every new sample for a changed world (a moved mirror, a
+    /// knocked camera), and calibrate again when one is found.
+    pub watch_drift: bool,
 }
 
 impl Default for LiveConfig {
@@ -50,6 +56,7 @@ impl Default for LiveConfig {
             arm_marker: 0,
             min_train: 8,
             settle_margin_ns: 30_000_000,
+            watch_drift: true,
         }
     }
 }
@@ -132,6 +139,11 @@ pub struct LiveReport {
     /// resumed one.
     #[serde(default)]
     pub recovered: Option<Recovery>,
+    /// The epochs of the run, first to last: each change of the world
+    /// found ends one (one epoch when nothing changed). The evaluation
+    /// and the calibration above are the last one's.
+    #[serde(default)]
+    pub epochs: Vec<EpochReport>,
 }
 
 /// What a restarted stage took back from its journal.
@@ -180,6 +192,34 @@ impl Latency {
     }
 }
 
+/// The epoch under way: since the last change of the world found.
+#[derive(Debug, Clone, Default)]
+struct Epoch {
+    /// From 1.
+    number: u32,
+    /// The pose at which it began (0 for the first).
+    began_at_pose: u64,
+    /// The change that began it (none for the first).
+    after: Option<Drift>,
+    /// Its first training sample, in `Live::train`.
+    train_from: usize,
+    /// Its first test sample, in `Live::tests`.
+    tests_from: usize,
+    /// The plane of the epoch before, where its calibration starts.
+    start_plane: Option<geometry::Plane>,
+}
+
+/// A change found and not yet calibrated again.
+#[derive(Debug, Clone)]
+struct Drifted {
+    drift: Drift,
+    /// The first training and test samples after the change began.
+    train_from: usize,
+    tests_from: usize,
+    /// The moved cameras have been found again.
+    cameras_found: bool,
+}
+
 #[derive(Debug, Clone)]
 struct Window {
     state: JointState,
@@ -219,7 +259,21 @@ pub struct Live {
     last_detection_seq: Option<u64>,
     rejections: Rejections,
     recovered: Option<Recovery>,
+    /// Scores new samples against the calibration (`watch_drift`).
+    monitor: Option<DriftMonitor>,
+    epoch: Epoch,
+    /// Epochs ended by a change.
+    past_epochs: Vec<EpochReport>,
+    drifted: Option<Drifted>,
+    /// Head cameras found again after they moved.
+    head_cameras: Vec<formats::calibration::HeadCameraEntry>,
+    /// Why calibrating stopped after a change, if it did.
+    stopped: Option<String>,
 }
+
+/// Fewest training samples in a calibration before new samples are
+/// scored against it: fewer leave it too loose to tell a change.
+pub const WATCH_FROM_SAMPLES: usize = 15;
 
 /// How far one input stream's stamps may run ahead of the other's before a
 /// message is taken to be stamped wrongly: such a message would otherwise
@@ -256,68 +310,60 @@ impl Live {
             last_detection_seq: None,
             rejections: Rejections::default(),
             recovered: None,
+            monitor: None,
+            epoch: Epoch {
+                number: 1,
+                ..Epoch::default()
+            },
+            past_epochs: Vec::new(),
+            drifted: None,
+            head_cameras: Vec::new(),
+            stopped: None,
         }
     }
 
     /// Resumes from what an earlier run of this stage journaled: its samples
     /// in the order they were paired, and its calibrations. Poses already
-    /// sampled are not paired again. The last calibration is computed again
-    /// from the training samples it used (the solvers are deterministic, so
-    /// it comes out the same, bit for bit, which is checked); training
-    /// samples journaled after it are calibrated on as they would have been.
-    /// Returns what must be published: a calibration the crash prevented.
+    /// sampled are not paired again. The samples are taken again in their
+    /// order, as they were when paired (the solvers are deterministic, so
+    /// every calibration and every change of the world found comes out the
+    /// same, bit for bit; the last journaled calibration is checked).
+    /// Returns what must be published: calibrations the crash prevented.
     pub fn resume(
         &mut self,
         samples: &[MirrorSample],
         calibrations: &[CalibrationMsg],
         dropped: Option<String>,
     ) -> Vec<Output> {
+        let journaled = calibrations.last();
+        let mut again = Vec::new();
         for s in samples {
             self.poses_sampled.insert(s.pose);
             self.counters.paired += 1;
-            if s.role == Role::Train as u32 {
-                self.train.push(*s);
-            } else {
-                self.tests.push(*s);
-            }
+            self.take_sample(*s, &mut again);
         }
         // The arm may still hold the last pose sampled before the crash: the
         // rest of its dwell is not a repeated pose.
         self.repeated_pose = samples.last().map(|s| s.pose);
-        let mut recovery = Recovery {
-            samples: samples.len(),
-            train_samples: self.train.len(),
-            dropped,
-            ..Default::default()
-        };
+        let published = journaled.map_or(0, |c| c.revision);
+        let mut reproduced = None;
         let mut out = Vec::new();
-        let last = calibrations.last();
-        if let Some(journaled) = last {
-            let used = samples_considered(journaled).min(self.train.len());
-            let train: Vec<Sample> = self.train[..used]
-                .iter()
-                .map(MirrorSample::to_sample)
-                .collect();
-            self.revision = journaled.revision;
-            recovery.revision = journaled.revision;
-            match calibrate(&self.rig, &train, self.config.method) {
-                Ok(cal) => {
-                    let again = self.calibration_msg(&cal, journaled.stamp_ns, journaled.revision);
-                    recovery.calibration_reproduced = Some(again == *journaled);
-                    self.calibration = Some(cal);
-                }
-                Err(e) => {
-                    recovery.calibration_reproduced = Some(false);
-                    self.last_error = Some(e.to_string());
+        for o in again {
+            if let Output::Calibration(c) = o {
+                if c.revision == published {
+                    reproduced = journaled.map(|j| *j == *c);
+                } else if c.revision > published {
+                    out.push(Output::Calibration(c));
                 }
             }
         }
-        let calibrated = last.map_or(0, samples_considered);
-        if self.train.len() > calibrated && self.train.len() >= self.config.min_train {
-            let stamp = self.train.last().map_or(0, |s| s.stamp_ns);
-            self.recalibrate(stamp, &mut out);
-        }
-        self.recovered = Some(recovery);
+        self.recovered = Some(Recovery {
+            samples: samples.len(),
+            train_samples: self.train.len(),
+            revision: published,
+            calibration_reproduced: journaled.map(|_| reproduced.unwrap_or(false)),
+            dropped,
+        });
         out
     }
 
@@ -465,6 +511,9 @@ impl Live {
                 Next::Joint => {
                     if let Some(js) = self.joints.pop_front() {
                         self.on_joint_state(js);
+                        if self.finished {
+                            self.on_plan_end(&mut out);
+                        }
                     }
                 }
                 Next::Detection => {
@@ -584,21 +633,249 @@ impl Live {
         };
         self.counters.paired += 1;
         out.push(Output::Sample(sample));
-        if state.role() == Ok(Role::Train) {
+        self.take_sample(sample, out);
+    }
+
+    /// What a new sample does: it is scored against the calibration for a
+    /// changed world, then trains the calibration or tests it.
+    fn take_sample(&mut self, sample: MirrorSample, out: &mut Vec<Output>) {
+        self.watch(&sample, out);
+        let stamp_ns = sample.stamp_ns;
+        if sample.role == Role::Train as u32 {
             self.train.push(sample);
-            if self.train.len() >= self.config.min_train {
-                self.recalibrate(stamp_ns, out);
-            }
         } else {
             self.tests.push(sample);
+        }
+        let train = sample.role == Role::Train as u32;
+        if self.drifted.is_some() {
+            self.recover(stamp_ns, out);
+        } else if self.stopped.is_some() {
+            // Nothing is calibrated or predicted any more.
+        } else if !train {
             self.predict(&sample, out);
+        } else if self.train.len() - self.epoch.train_from >= self.config.min_train {
+            self.recalibrate(stamp_ns, out);
         }
     }
 
+    /// Scores `sample` against the calibration; a change found ends the
+    /// epoch: the calibration is published once more, drifted.
+    fn watch(&mut self, sample: &MirrorSample, out: &mut Vec<Output>) {
+        if self.drifted.is_some() || self.stopped.is_some() {
+            return;
+        }
+        let Some(drift) = self
+            .monitor
+            .as_mut()
+            .and_then(|m| m.push(&sample.to_sample()))
+            .cloned()
+        else {
+            return;
+        };
+        self.monitor = None;
+        // The change began at `began_at_pose`: the samples from it on
+        // belong to the world as it is now.
+        let began_ns = self
+            .train
+            .iter()
+            .chain(&self.tests)
+            .chain([sample])
+            .find(|s| s.pose == drift.began_at_pose)
+            .map_or(sample.stamp_ns, |s| s.stamp_ns);
+        let from = |samples: &[MirrorSample]| {
+            samples
+                .iter()
+                .position(|s| s.stamp_ns >= began_ns)
+                .unwrap_or(samples.len())
+        };
+        let (train_from, tests_from) = (from(&self.train), from(&self.tests));
+        let set_aside = train_from - self.epoch.train_from;
+        tracing::warn!(
+            began_at_pose = drift.began_at_pose,
+            found_at_pose = drift.found_at_pose,
+            "the world changed: the {} moved; the calibration no longer holds: its {set_aside} calibration samples are set aside, and it is calibrated again from the samples that follow",
+            epochs::describe(&drift.moved)
+        );
+        self.drifted = Some(Drifted {
+            drift,
+            train_from,
+            tests_from,
+            cameras_found: false,
+        });
+        if let Some(cal) = &self.calibration {
+            self.revision += 1;
+            let msg = self.calibration_msg(cal, sample.stamp_ns, self.revision);
+            out.push(Output::Calibration(Box::new(msg)));
+        }
+    }
+
+    /// After a change: finds the moved cameras again once enough direct
+    /// views have come, and calibrates the new epoch once enough training
+    /// samples have.
+    fn recover(&mut self, stamp_ns: i64, out: &mut Vec<Output>) {
+        let (Some(d), Some(old)) = (self.drifted.clone(), self.calibration.clone()) else {
+            return;
+        };
+        let moved = epochs::cameras_moved(&self.rig, &d.drift.moved);
+        let new_train = self.train.len() - d.train_from;
+        if !moved.is_empty() && !d.cameras_found {
+            let direct = self.tests[d.tests_from..]
+                .iter()
+                .filter(|s| s.role == Role::Direct as u32)
+                .count();
+            if direct < CAMERA_VIEWS {
+                return;
+            }
+            let since: Vec<Sample> = self.train[d.train_from..]
+                .iter()
+                .chain(&self.tests[d.tests_from..])
+                .map(MirrorSample::to_sample)
+                .collect();
+            let sigma = CalibrateOptions::default().pixel_sigma_for(&self.rig);
+            let other_still = moved.len() == 1;
+            for k in moved {
+                let found = epochs::find_camera(
+                    &self.rig,
+                    &old,
+                    &since,
+                    k,
+                    other_still,
+                    sigma,
+                    d.drift.began_at_pose,
+                );
+                match found {
+                    Ok(found) => {
+                        tracing::info!(
+                            camera = found.name,
+                            turn_deg = found.turn_deg,
+                            sigma_deg = ?found.sigma_deg,
+                            views = found.views,
+                            "camera found again"
+                        );
+                        self.rig.cameras[k].camera_from_world =
+                            Matrix3::from_row_slice(&found.camera_from_world);
+                        self.head_cameras.retain(|c| c.name != found.name);
+                        self.head_cameras.push(found);
+                    }
+                    Err(why) => {
+                        self.stop(why, stamp_ns, out);
+                        return;
+                    }
+                }
+            }
+            if let Some(d) = self.drifted.as_mut() {
+                d.cameras_found = true;
+            }
+            // The mirror did not move: its plane gives the moved camera's
+            // mirror camera at once.
+            if new_train < self.config.min_train
+                && let Some(cal) = epochs::reflected_anew(&old, &self.rig)
+            {
+                self.begin_epoch(cal, stamp_ns, out);
+                return;
+            }
+        }
+        if new_train < self.config.min_train {
+            return;
+        }
+        let samples: Vec<Sample> = self.train[d.train_from..]
+            .iter()
+            .map(MirrorSample::to_sample)
+            .collect();
+        let options = CalibrateOptions {
+            start_plane: old.plane,
+            ..CalibrateOptions::default()
+        };
+        match calibrate_with(&self.rig, &samples, self.config.method, options) {
+            Ok(cal) => self.begin_epoch(cal, stamp_ns, out),
+            Err(e) => {
+                self.counters.calibration_failures += 1;
+                self.last_error = Some(e.to_string());
+            }
+        }
+    }
+
+    /// Ends the epoch under way at the change found, and begins the next
+    /// with `cal`.
+    fn begin_epoch(&mut self, cal: Calibration, stamp_ns: i64, out: &mut Vec<Output>) {
+        let Some(d) = self.drifted.take() else { return };
+        let ended = self.epoch_report(Some(d.drift.began_at_pose), d.train_from, d.tests_from);
+        self.past_epochs.push(ended);
+        self.epoch = Epoch {
+            number: self.epoch.number + 1,
+            began_at_pose: d.drift.began_at_pose,
+            after: Some(d.drift),
+            train_from: d.train_from,
+            tests_from: d.tests_from,
+            start_plane: self.calibration.as_ref().and_then(|c| c.plane),
+        };
+        tracing::info!(
+            epoch = self.epoch.number,
+            began_at_pose = self.epoch.began_at_pose,
+            samples = cal.samples,
+            "calibrated again after the change"
+        );
+        self.publish_calibration(cal, stamp_ns, out);
+    }
+
+    /// Calibrating cannot go on after the change: says why, once.
+    fn stop(&mut self, why: String, stamp_ns: i64, out: &mut Vec<Output>) {
+        tracing::warn!("calibration stopped: {why}");
+        self.stopped = Some(why.clone());
+        self.last_error = Some(why);
+        if let Some(cal) = &self.calibration {
+            self.revision += 1;
+            let msg = self.calibration_msg(cal, stamp_ns, self.revision);
+            out.push(Output::Calibration(Box::new(msg)));
+        }
+        self.drifted = None;
+    }
+
+    /// At the plan's end: a change not yet calibrated again stops the
+    /// calibration, with the reason.
+    fn on_plan_end(&mut self, out: &mut Vec<Output>) {
+        let Some(d) = self.drifted.clone() else {
+            return;
+        };
+        let what = epochs::describe(&d.drift.moved);
+        let why = if !epochs::cameras_moved(&self.rig, &d.drift.moved).is_empty()
+            && !d.cameras_found
+        {
+            let direct = self.tests[d.tests_from..]
+                .iter()
+                .filter(|s| s.role == Role::Direct as u32)
+                .count();
+            format!(
+                "the {what} moved at pose {} (found at pose {}), and {direct} direct views came after it, of the {CAMERA_VIEWS} needed to find its pose again; the plan needs direct views after the change",
+                d.drift.began_at_pose, d.drift.found_at_pose
+            )
+        } else {
+            format!(
+                "the {what} moved at pose {} (found at pose {}), and {} calibration samples came after it, of the {} needed to calibrate again{}",
+                d.drift.began_at_pose,
+                d.drift.found_at_pose,
+                self.train.len() - d.train_from,
+                self.config.min_train,
+                self.last_error
+                    .as_ref()
+                    .map_or(String::new(), |e| format!(" ({e})"))
+            )
+        };
+        let stamp = self.last_detection_stamp.max(self.last_joint_stamp);
+        self.stop(why, stamp, out);
+    }
+
     fn recalibrate(&mut self, stamp_ns: i64, out: &mut Vec<Output>) {
-        let _span = tracing::trace_span!("calibrate", samples = self.train.len()).entered();
-        let samples: Vec<Sample> = self.train.iter().map(MirrorSample::to_sample).collect();
-        match calibrate(&self.rig, &samples, self.config.method) {
+        let samples: Vec<Sample> = self.train[self.epoch.train_from..]
+            .iter()
+            .map(MirrorSample::to_sample)
+            .collect();
+        let _span = tracing::trace_span!("calibrate", samples = samples.len()).entered();
+        let options = CalibrateOptions {
+            start_plane: self.epoch.start_plane,
+            ..CalibrateOptions::default()
+        };
+        match calibrate_with(&self.rig, &samples, self.config.method, options) {
             Ok(cal) => {
                 for r in &cal.rejected {
                     if self.rejections_logged.insert(r.pose) {
@@ -617,11 +894,8 @@ impl Live {
                     Fit::Poor { .. } => {}
                     _ => self.poor_fit_logged = false,
                 }
-                self.revision += 1;
                 self.last_error = None;
-                let msg = self.calibration_msg(&cal, stamp_ns, self.revision);
-                self.calibration = Some(cal);
-                out.push(Output::Calibration(Box::new(msg)));
+                self.publish_calibration(cal, stamp_ns, out);
             }
             Err(e) => {
                 // Keep collecting: a later sample may make the problem well
@@ -631,13 +905,29 @@ impl Live {
                 let why = e.to_string();
                 if self.last_error.as_ref() != Some(&why) {
                     tracing::warn!(
-                        samples = self.train.len(),
+                        samples = samples.len(),
                         "cannot calibrate yet: {why}; collecting more samples"
                     );
                 }
                 self.last_error = Some(why);
             }
         }
+    }
+
+    /// Publishes `cal` as the next revision and watches the samples that
+    /// follow against it.
+    fn publish_calibration(&mut self, cal: Calibration, stamp_ns: i64, out: &mut Vec<Output>) {
+        self.revision += 1;
+        let msg = self.calibration_msg(&cal, stamp_ns, self.revision);
+        if self.config.watch_drift && cal.samples >= WATCH_FROM_SAMPLES {
+            let sigma = CalibrateOptions::default().pixel_sigma_for(&self.rig);
+            match &mut self.monitor {
+                Some(m) => m.watch(&self.rig, cal.clone(), sigma),
+                None => self.monitor = Some(DriftMonitor::new(&self.rig, cal.clone(), sigma)),
+            }
+        }
+        self.calibration = Some(cal);
+        out.push(Output::Calibration(Box::new(msg)));
     }
 
     /// The message of calibration `cal`.
@@ -663,7 +953,73 @@ impl Live {
             msg.joint_offsets[..msg.dof as usize].copy_from_slice(&o[..msg.dof as usize]);
         }
         msg.uncertainty = uncertainty_msg(cal);
+        msg.epoch = self.epoch_msg();
         msg
+    }
+
+    /// The state of the calibration as the message states it.
+    fn epoch_msg(&self) -> CalibrationEpoch {
+        let moved = |m: &Moved| match m {
+            Moved::Mirror => (messages::Moved::Mirror, 0),
+            Moved::Camera(name) => (
+                messages::Moved::Camera,
+                self.rig.names.iter().position(|n| n == name).unwrap_or(0) as u32,
+            ),
+            Moved::Head => (messages::Moved::Head, 0),
+        };
+        let mut msg = CalibrationEpoch {
+            epoch: self.epoch.number,
+            began_at_pose: self.epoch.began_at_pose,
+            ..Default::default()
+        };
+        let change = match (&self.drifted, &self.epoch.after) {
+            (Some(d), _) => {
+                msg.state = EpochState::Drifted as u32;
+                msg.began_at_pose = d.drift.began_at_pose;
+                Some(&d.drift)
+            }
+            (None, after) => after.as_ref(),
+        };
+        if self.stopped.is_some() {
+            msg.state = EpochState::Stopped as u32;
+        }
+        if let Some(c) = change {
+            let (what, camera) = moved(&c.moved);
+            msg.moved = what as u32;
+            msg.camera = camera;
+            msg.found_at_pose = c.found_at_pose;
+        }
+        msg
+    }
+
+    /// The report of the epoch under way, ended where a change began at
+    /// `ended_at_pose` (its samples before `train_to`, `tests_to`).
+    fn epoch_report(
+        &self,
+        ended_at_pose: Option<u64>,
+        train_to: usize,
+        tests_to: usize,
+    ) -> EpochReport {
+        EpochReport {
+            epoch: self.epoch.number,
+            began_at_pose: self.epoch.began_at_pose,
+            after: self
+                .epoch
+                .after
+                .as_ref()
+                .map(|d| epochs::describe(&d.moved)),
+            found_at_pose: self.epoch.after.as_ref().map(|d| d.found_at_pose),
+            ended_at_pose,
+            train_samples: train_to - self.epoch.train_from,
+            test_samples: tests_to - self.epoch.tests_from,
+            calibration: self.calibration.as_ref().map(|c| self.calibration_file(c)),
+        }
+    }
+
+    /// The file form of `cal`, with the head cameras found again so far.
+    fn calibration_file(&self, cal: &Calibration) -> formats::calibration::CalibrationFile {
+        cal.to_file(&self.rig)
+            .with_head_cameras(self.head_cameras.clone())
     }
 
     fn predict(&self, sample: &MirrorSample, out: &mut Vec<Output>) {
@@ -702,6 +1058,10 @@ impl Live {
     }
 
     fn locate_objects(&mut self, d: &StereoDetections, out: &mut Vec<Output>) {
+        // Not through a calibration the world has changed under.
+        if self.drifted.is_some() || self.stopped.is_some() {
+            return;
+        }
         let Some(cal) = &self.calibration else { return };
         for m in d.cameras[0]
             .iter()
@@ -735,25 +1095,40 @@ impl Live {
         }
     }
 
-    /// The final report: the final calibration evaluated on all test samples.
+    /// The final report: the final calibration evaluated on the test
+    /// samples of its epoch.
     pub fn report(&self) -> LiveReport {
-        let tests: Vec<Sample> = self.tests.iter().map(MirrorSample::to_sample).collect();
-        let evaluation = self.calibration.as_ref().and_then(|cal| {
-            evaluate(
-                &self.rig,
-                &cal.mirror_cameras,
-                cal.joint_offsets.as_deref(),
-                &tests,
-            )
-            .ok()
-            .map(|e| e.summary())
-        });
+        let tests: Vec<Sample> = self.tests[self.epoch.tests_from..]
+            .iter()
+            .map(MirrorSample::to_sample)
+            .collect();
+        let usable = self.drifted.is_none() && self.stopped.is_none();
+        let evaluation = self
+            .calibration
+            .as_ref()
+            .filter(|_| usable)
+            .and_then(|cal| {
+                evaluate(
+                    &self.rig,
+                    &cal.mirror_cameras,
+                    cal.joint_offsets.as_deref(),
+                    &tests,
+                )
+                .ok()
+                .map(|e| e.summary())
+            });
+        let (ended, train_to, tests_to) = match &self.drifted {
+            Some(d) => (Some(d.drift.began_at_pose), d.train_from, d.tests_from),
+            None => (None, self.train.len(), self.tests.len()),
+        };
+        let mut epochs = self.past_epochs.clone();
+        epochs.push(self.epoch_report(ended, train_to, tests_to));
         LiveReport {
             method: self.config.method.to_string(),
             train_samples: self.train.len(),
             test_samples: self.tests.len(),
             evaluation,
-            calibration: self.calibration.as_ref().map(|c| c.to_file(&self.rig)),
+            calibration: self.calibration.as_ref().map(|c| self.calibration_file(c)),
             located: self.located.clone(),
             located_sigma_mm: self.located_sigma_mm.clone(),
             last_error: self.last_error.clone().or_else(|| {
@@ -770,6 +1145,7 @@ impl Live {
             counters: self.counters.clone(),
             latency_ms: None,
             recovered: self.recovered.clone(),
+            epochs,
         }
     }
 }
@@ -798,10 +1174,4 @@ fn uncertainty_msg(cal: &Calibration) -> CalibrationUncertainty {
         }
     }
     msg
-}
-
-/// The training samples a calibration was computed from: those it kept and
-/// those its outlier test set aside (the first ones of the stage's list).
-fn samples_considered(c: &CalibrationMsg) -> usize {
-    c.samples as usize + c.uncertainty.rejected_samples as usize
 }

@@ -85,6 +85,8 @@ impl Outputs {
             Output::Calibration(c) => {
                 tracing::info!(
                     revision = c.revision,
+                    epoch = c.epoch.epoch,
+                    state = ?c.epoch.state(),
                     samples = c.samples,
                     rms_px = c.train_rms_px,
                     plane_sigma_deg = c.uncertainty.plane_angle_deg,

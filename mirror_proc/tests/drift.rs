@@ -2,13 +2,11 @@
 //! made before the change raise the alarm within a few samples of it and
 //! name what moved, and a world that does not change raises none.
 
-use geometry::sim::{
-    Counts, Dataset, Mirror, NoiseModel, Scene, generate, nico_noise_scaled, nico_scene,
-};
-use geometry::{Camera, Plane, Sample};
+use geometry::Sample;
+use geometry::sim::{Counts, Dataset, NoiseModel, Scene, generate, nico_noise_scaled, nico_scene};
 use mirror_proc::calibrate::{Calibration, Method, calibrate};
 use mirror_proc::drift::{DriftMonitor, Moved};
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::Vector3;
 
 const PIXEL_SIGMA: f64 = 0.2;
 
@@ -46,20 +44,14 @@ fn calibration(d: &Dataset) -> Calibration {
 /// plane through its centre, then moved `shift_mm` along its normal.
 fn moved_mirror(scene: &Scene, m: usize, tilt_deg: f64, shift_mm: f64) -> Scene {
     let mut scene = scene.clone();
-    let mirror: &mut Mirror = &mut scene.mirrors[m];
-    let turn = Rotation3::new(mirror.width_axis * tilt_deg.to_radians());
-    let normal = turn * mirror.plane.normal.into_inner();
-    mirror.center += normal * shift_mm;
-    mirror.plane = Plane::through(&mirror.center, normal).unwrap();
+    scene.mirrors[m] = scene.mirrors[m].moved(tilt_deg, shift_mm);
     scene
 }
 
 /// `scene` with its left camera turned by `deg` about its own vertical.
 fn knocked_left(scene: &Scene, deg: f64) -> Scene {
     let mut scene = scene.clone();
-    let c = scene.rig.cameras[0];
-    let turn = Rotation3::new(Vector3::y() * deg.to_radians());
-    scene.rig.cameras[0] = Camera::new(c.intrinsics, turn.matrix() * c.camera_from_world, c.center);
+    scene.rig.cameras[0] = scene.rig.cameras[0].turned(&(Vector3::y() * deg.to_radians()));
     scene
 }
 

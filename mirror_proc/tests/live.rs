@@ -1,8 +1,11 @@
 //! The live stage is deterministic: the same messages in any interleaving
 //! of the two input streams give the same outputs.
 
+mod common;
+
+use common::by_stamp;
 use geometry::sim::{Counts, generate, nico_noise, nico_scene};
-use messages::{CameraMarkers, JointState, Marker, Phase, Role, StereoDetections};
+use messages::{JointState, Phase, Role, StereoDetections};
 use mirror_proc::live::{Live, LiveConfig, Output};
 
 /// Joint states at 100 Hz (move 100 ms, dwell 200 ms per pose) and
@@ -36,60 +39,7 @@ fn streams_with(wrong: Option<(usize, usize)>) -> (Vec<JointState>, Vec<StereoDe
         .map(|s| (s, Role::Train))
         .chain(data.test.iter().map(|s| (s, Role::Test)))
         .collect();
-    let period = 300_000_000i64;
-    let mut joints = Vec::new();
-    for t in (0..poses.len() as i64 * period + 50_000_000).step_by(10_000_000) {
-        let i = (t / period) as usize;
-        let mut js = JointState {
-            seq: joints.len() as u64,
-            stamp_ns: t,
-            dof: 4,
-            ..Default::default()
-        };
-        if let Some((s, r)) = poses.get(i) {
-            js.pose = s.pose;
-            js.role = *r as u32;
-            js.phase = if t - i as i64 * period >= 100_000_000 {
-                Phase::Settled as u32
-            } else {
-                Phase::Moving as u32
-            };
-            js.q[..4].copy_from_slice(s.joints.as_ref().unwrap());
-            js.model_point = s.model_point.unwrap().into();
-        } else {
-            js.phase = Phase::Done as u32;
-        }
-        joints.push(js);
-    }
-    let mut detections = Vec::new();
-    for (n, t) in (0..poses.len() as i64 * period + 100_000_000)
-        .step_by(33_333_333)
-        .enumerate()
-    {
-        let i = (t / period) as usize;
-        let mut d = StereoDetections {
-            seq: n as u64,
-            stamp_ns: t + 1,
-            ..Default::default()
-        };
-        // The marker is only where the pose holds still.
-        if let Some((s, _)) = poses
-            .get(i)
-            .filter(|_| t - i as i64 * period >= 100_000_000)
-        {
-            for k in 0..2 {
-                let mut cam = CameraMarkers::default();
-                cam.push(Marker {
-                    id: 0,
-                    mirrored: 1,
-                    corners: [0.0; 8],
-                    center: s.pixels[k].into(),
-                });
-                d.cameras[k] = cam;
-            }
-        }
-        detections.push(d);
-    }
+    let (joints, detections) = common::streams_of(&poses);
     (joints, detections, poses.len())
 }
 
@@ -201,22 +151,6 @@ fn malformed_messages_are_dropped_and_counted() {
     overfull.cameras[1].count = 99;
     live.push_detections(overfull);
     assert_eq!(live.report().counters.rejected, 4);
-}
-
-/// The streams interleaved by stamp, as they arrive live.
-fn by_stamp(joints: &[JointState], detections: &[StereoDetections]) -> Vec<bool> {
-    let (mut j, mut d, mut order) = (0, 0, Vec::new());
-    while j < joints.len() || d < detections.len() {
-        let take_joint = d == detections.len()
-            || (j < joints.len() && joints[j].stamp_ns <= detections[d].stamp_ns);
-        if take_joint {
-            j += 1
-        } else {
-            d += 1
-        }
-        order.push(take_joint);
-    }
-    order
 }
 
 /// A rogue publisher's messages amid the real ones: each is dropped and

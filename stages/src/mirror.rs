@@ -37,6 +37,13 @@ pub struct Args {
     /// for a new calibration.
     #[arg(long)]
     pub journal: Option<PathBuf>,
+    /// Do not watch new samples for a changed world. By default each new
+    /// sample is scored against the calibration; a moved mirror or a
+    /// knocked camera found ends the calibration's epoch (the calibration
+    /// goes out once more, drifted) and the stage calibrates again from
+    /// the samples that follow.
+    #[arg(long)]
+    pub no_drift_watch: bool,
 }
 
 impl Args {
@@ -50,6 +57,7 @@ impl Args {
             settle_ms: 30,
             report: None,
             journal: None,
+            no_drift_watch: false,
         }
     }
 }
@@ -92,6 +100,7 @@ impl Stage for Mirror {
             report: Some("out/report.json".into()),
             journal: Some("out/journal.mcap".into()),
             min_train: 12,
+            no_drift_watch: true,
             ..Args::new("p", "r.toml")
         }
     }

@@ -22,7 +22,7 @@ LOSSLESS = {
     "detections": "mirror.StereoDetections.v2",
     "joint_state": "mirror.JointState.v1",
     "samples": "mirror.MirrorSample.v1",
-    "calibration": "mirror.Calibration.v2",
+    "calibration": "mirror.Calibration.v3",
     "predictions": "mirror.Prediction.v1",
     "located": "mirror.LocatedObject.v2",
     "joint_positions": "mirror.JointPositions.v1",

@@ -54,6 +54,20 @@ impl Mirror {
         }
     }
 
+    /// This mirror turned by `tilt_deg` about its width axis through its
+    /// centre, then moved `shift_mm` along its (turned) normal, towards
+    /// the robot: a mirror that was bumped.
+    pub fn moved(&self, tilt_deg: f64, shift_mm: f64) -> Self {
+        let turn = Rotation3::new(self.width_axis * tilt_deg.to_radians());
+        let normal = turn * self.plane.normal.into_inner();
+        let center = self.center + normal * shift_mm;
+        Self {
+            plane: Plane::through(&center, normal).expect("unit normal"),
+            center,
+            ..*self
+        }
+    }
+
     /// Whether the ray from `eye` to the virtual point `behind` passes through the glass.
     pub fn ray_hits_glass(&self, eye: &Vector3<f64>, behind: &Vector3<f64>) -> bool {
         let (de, db) = (

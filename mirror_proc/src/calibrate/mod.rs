@@ -494,6 +494,10 @@ pub struct CalibrateOptions {
     /// The detections' noise, px per coordinate; else the rig's
     /// `pixel_sigma`, else [`TRACKER_PIXEL_SIGMA`].
     pub pixel_sigma: Option<f64>,
+    /// Where the joint methods' refinement of a single placement starts:
+    /// an earlier solution (a mirror calibrated again after it moved);
+    /// else midway between the samples' J and Ĵ.
+    pub start_plane: Option<Plane>,
 }
 
 impl Default for CalibrateOptions {
@@ -503,6 +507,7 @@ impl Default for CalibrateOptions {
             set_aside_outliers: true,
             judge_fit: true,
             pixel_sigma: None,
+            start_plane: None,
         }
     }
 }
@@ -516,6 +521,7 @@ impl CalibrateOptions {
             set_aside_outliers: false,
             judge_fit: false,
             pixel_sigma: None,
+            start_plane: None,
         }
     }
 
@@ -594,7 +600,9 @@ pub fn calibrate_placements(
     }
     let sigma = options.pixel_sigma_for(rig);
     let prior = options.uncertainty.then_some(sigma);
-    let solve = |obs: &[Observation]| solve(rig, obs, placements.len(), method, estimate, prior);
+    let start = options.start_plane.filter(|_| placements.len() == 1);
+    let solve =
+        |obs: &[Observation]| solve(rig, obs, placements.len(), method, estimate, prior, start);
     let mut cal = solve(&obs)?;
     let mut kept = vec![true; obs.len()];
     // Each sample's error under `cal`, kept current with it.
@@ -904,9 +912,11 @@ fn solve(
     method: Method,
     estimate: Estimate,
     prior_sigma: Option<f64>,
+    start_plane: Option<Plane>,
 ) -> Result<Calibration, CalibrateError> {
-    // Each placement's J/Ĵ midplane: the joint methods start from it, and
-    // the paper's per-camera planes are it in each camera's frame.
+    // Each placement's J/Ĵ midplane: the joint methods start from it (or
+    // from `start_plane`, checked the same), and the paper's per-camera
+    // planes are it in each camera's frame.
     let mut starts = Vec::with_capacity(placements);
     for p in 0..placements {
         let mirrored: Vec<&Observation> = obs
@@ -919,7 +929,10 @@ fn solve(
                     found: mirrored.len(),
                 });
             }
-            let start = midplane(mirrored.iter().map(|o| (o.model_point, o.reflected_point)))?;
+            let start = match start_plane {
+                Some(plane) => plane,
+                None => midplane(mirrored.iter().map(|o| (o.model_point, o.reflected_point)))?,
+            };
             check_plane_clear_of_cameras(rig, &start)?;
             check_plane_not_edge_on(rig, &start, mirrored.iter().copied())?;
             Ok(start)
