@@ -88,12 +88,13 @@ fn run(args: Args) -> anyhow::Result<()> {
             tail_frames,
             look,
             mjpeg,
+            changes,
         }) => {
             let look = renderer::look::Look {
                 jpeg_quality: mjpeg,
                 ..renderer::look::Look::named(look)
             };
-            stage::run_sim(&prefix, mirror, fps, tail_frames, look)?;
+            stage::run_sim(&prefix, mirror, fps, tail_frames, look, &changes)?;
         }
         Source::Files {
             prefix,

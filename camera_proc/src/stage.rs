@@ -10,9 +10,10 @@ use runtime::Bus;
 use crate::CameraError;
 use crate::clock::FrameClock;
 use crate::source::StereoSource;
-use geometry::sim::{Facing, SimWorld};
+use geometry::sim::{Facing, SimWorld, WorldChange};
 use renderer::Renderer;
 use renderer::look::Look;
+use stages::camera::ChangeAt;
 
 fn header(seq: u64, width: u32, height: u32) -> FrameHeader {
     FrameHeader {
@@ -48,9 +49,21 @@ fn joint_velocity(last: &JointPositions, now: &JointPositions) -> Option<Vec<f64
     })
 }
 
+/// The world after each of `changes`, in turn: the first is `world`.
+fn worlds(world: SimWorld, changes: &[ChangeAt]) -> Result<Vec<SimWorld>, CameraError> {
+    let mut worlds = vec![world];
+    for c in changes {
+        let change = WorldChange::from(c.change);
+        let next = worlds[worlds.len() - 1].changed(&change)?;
+        worlds.push(next);
+    }
+    Ok(worlds)
+}
+
 /// The simulated head: renders what it sees at `fps`, the arm where the
 /// arm driver's joint positions put it (its card turned as the current pose
 /// goal's role says), until `tail_frames` after the goal that ends the plan.
+/// From the goal of each of `changes`' poses on, the world is changed so.
 /// A rate outside (0, 1000] Hz is a [`CameraError::BadFps`].
 pub fn run_sim(
     prefix: &str,
@@ -58,6 +71,7 @@ pub fn run_sim(
     fps: f64,
     tail_frames: u32,
     look: Look,
+    changes: &[ChangeAt],
 ) -> Result<(), CameraError> {
     if !(fps > 0.0 && fps <= 1000.0) {
         return Err(CameraError::BadFps { fps });
@@ -65,7 +79,14 @@ pub fn run_sim(
     let world = SimWorld::nico(mirror)?;
     let intr = world.rig.cameras[0].intrinsics;
     let dof = world.rig.arm.as_ref().map_or(0, |a| a.dof());
-    let mut renderer = Renderer::with_look(world, look)?;
+    // One renderer per world, ready before the first frame: a change
+    // takes effect at once, no frame late.
+    let mut renderers = worlds(world, changes)?
+        .into_iter()
+        .map(|w| Renderer::with_look(w, look))
+        .collect::<Result<Vec<_>, _>>()?;
+    // Changes that have taken effect.
+    let mut changed = 0usize;
     let bus = stages::bus_of::<stages::camera::Camera>(prefix)?;
     let frames = bus.frame_publisher::<topics::Frames>(2 * (intr.width * intr.height) as usize)?;
     let joints = bus.subscriber::<topics::JointPositions>()?;
@@ -106,7 +127,13 @@ pub fn run_sim(
                 match g.fault(dof) {
                     Some(why) => rejections.reject("pose goal", g.seq, &why),
                     None if g.finished() => finished = true,
-                    None => role = g.role,
+                    None => {
+                        role = g.role;
+                        while changes.get(changed).is_some_and(|c| c.pose == g.pose) {
+                            changed += 1;
+                            tracing::info!(pose = g.pose, change = %changes[changed - 1], "the world changes");
+                        }
+                    }
                 }
             }
             // Render on the frame clock only; joint-state wake-ups just update the pose.
@@ -120,7 +147,7 @@ pub fn run_sim(
             let _span = tracing::trace_span!("camera_step", seq).entered();
             let cpu = runtime::stats::StepStart::now();
             frames.publish(h, |left, right| {
-                renderer
+                renderers[changed]
                     .render_moving(
                         state.joints(),
                         velocity.as_deref(),

@@ -207,6 +207,8 @@ struct Epoch {
     tests_from: usize,
     /// The plane of the epoch before, where its calibration starts.
     start_plane: Option<geometry::Plane>,
+    /// The head cameras found again before it began, in force in it.
+    head_cameras: Vec<formats::calibration::HeadCameraEntry>,
 }
 
 /// A change found and not yet calibrated again.
@@ -808,6 +810,7 @@ impl Live {
             train_from: d.train_from,
             tests_from: d.tests_from,
             start_plane: self.calibration.as_ref().and_then(|c| c.plane),
+            head_cameras: self.head_cameras.clone(),
         };
         tracing::info!(
             epoch = self.epoch.number,
@@ -1016,10 +1019,11 @@ impl Live {
         }
     }
 
-    /// The file form of `cal`, with the head cameras found again so far.
+    /// The file form of `cal`, a calibration of the epoch under way, with
+    /// the head cameras found again before it.
     fn calibration_file(&self, cal: &Calibration) -> formats::calibration::CalibrationFile {
         cal.to_file(&self.rig)
-            .with_head_cameras(self.head_cameras.clone())
+            .with_head_cameras(self.epoch.head_cameras.clone())
     }
 
     fn predict(&self, sample: &MirrorSample, out: &mut Vec<Output>) {

@@ -92,6 +92,10 @@ pub struct Config {
     /// and the truth in the report keep the true one.
     #[serde(default, skip_serializing_if = "RigError::is_zero")]
     pub rig_error: RigError,
+    /// Changes of the simulated world during the run (`[[event]]`): see
+    /// [`crate::events`].
+    #[serde(default, rename = "event", skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<crate::events::Event>,
 }
 
 /// Errors put into the rig the stages get (`[rig_error]`), in fixed
@@ -332,6 +336,7 @@ impl Config {
                 placements - 1
             );
         }
+        crate::events::check(path, &config.events, placements)?;
         if !(config.fps > 0.0 && config.fps <= 1000.0) {
             bail!(
                 "{}: key fps: {} is not in (0, 1000]",
@@ -489,6 +494,52 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("unknown field `topic`"), "{e}");
+    }
+
+    #[test]
+    fn events_are_checked_and_the_plan_extended_after_them() {
+        let events = "[[event]]\nat_pose = 35\nmirror = { tilt_deg = 1.0, shift_mm = 5.0 }\n\n\
+            [[event]]\nat_pose = 70\ncamera = { name = \"left\", rotate_deg = 0.3 }\n";
+        let config = load(&format!("{GOOD}{events}"), Overrides::default()).unwrap();
+        assert_eq!(config.events.len(), 2);
+        let (_, plan) = crate::run::plan_for(&config, 0).unwrap();
+        let after = &plan[70..];
+        let count = |role| after.iter().filter(|p| p.role == role).count();
+        assert!(count(geometry::Role::Train) >= crate::events::TRAIN_AFTER);
+        assert!(count(geometry::Role::Direct) >= crate::events::DIRECT_AFTER);
+        let ids: std::collections::BTreeSet<u64> = plan.iter().map(|p| p.pose).collect();
+        assert_eq!(ids.len(), plan.len(), "every pose id once");
+        let changes =
+            crate::events::changes(&crate::events::of_placement(&config.events, 0), &plan);
+        assert_eq!(
+            changes.iter().map(|c| c.pose).collect::<Vec<_>>(),
+            [plan[35].pose, plan[70].pose]
+        );
+        for (bad, why) in [
+            ("[[event]]\nat_pose = 5\n", "give one of"),
+            (
+                "[[event]]\nat_pose = 5\ncamera = { name = \"middle\", rotate_deg = 1.0 }\n",
+                "\"middle\" is not one of",
+            ),
+            (
+                "[[event]]\nat_pose = 9\nmirror = {}\n[[event]]\nat_pose = 5\nmirror = {}\n",
+                "plan order",
+            ),
+            ("[[event]]\nat_pose = 0\nmirror = {}\n", "at_pose 0"),
+            (
+                "[[event]]\nat_pose = 5\nplacement = 3\nmirror = {}\n",
+                "placement 3 does not exist",
+            ),
+            (
+                "[[event]]\nat_pose = 5\nmirror = { tilt = 1.0 }\n",
+                "unknown field `tilt`",
+            ),
+        ] {
+            let e = load(&format!("{GOOD}{bad}"), Overrides::default())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(why) && !e.contains('\n'), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -17,6 +17,7 @@ mod args;
 mod certs;
 mod combined;
 mod config;
+mod events;
 mod replay;
 mod report;
 mod run;
@@ -140,7 +141,15 @@ fn run(args: Args) -> Result<()> {
         if replay.is_some() {
             bail!("--estimate cannot be used with --replay: a replay holds one placement");
         }
-        Some(combined::calibrate(&run, estimate))
+        if run.config.events.is_empty() {
+            Some(combined::calibrate(&run, estimate))
+        } else {
+            // Its samples span the changes; each epoch is calibrated apart.
+            eprintln!(
+                "estimate: no combined calibration across the placements: the world changed during the run ([[event]]), and the combined calibration takes each placement's world to hold still"
+            );
+            None
+        }
     } else {
         None
     };

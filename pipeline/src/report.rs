@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
-use geometry::sim::{Dataset, HIDDEN_OBJECT_ID, SimWorld};
+use formats::calibration::CalibrationFile;
+use geometry::sim::{HIDDEN_OBJECT_ID, SimWorld};
 use mirror_proc::calibrate::Method;
 use mirror_proc::experiment::{PAPER_FIGURES, rotation_error};
 use mirror_proc::live::LiveReport;
@@ -46,6 +47,7 @@ pub fn finish(
     } else {
         if side != Some(Side::Robot) {
             print!("{}", table(results, run.config.method));
+            print!("{}", epoch_lines(results));
         }
         if let Some(c) = combined {
             print!("{}", crate::combined::lines(c));
@@ -93,9 +95,14 @@ pub struct PlacementResult {
     /// The mirror stage's report (none on the robot side of a split run).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub report: Option<LiveReport>,
-    /// Its calibration against the simulator's truth.
+    /// Its calibration against the simulator's truth (the world as it is
+    /// at the run's end).
     #[serde(flatten)]
     pub truth: Option<TruthErrors>,
+    /// Where the world changed during the run: each epoch against the
+    /// world of its time.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub epochs: Vec<EpochTruth>,
     /// Stage restarts.
     pub restarts: u32,
     /// Wall time of the placement, s.
@@ -107,7 +114,7 @@ pub struct PlacementResult {
 }
 
 /// The errors of a calibration against the simulator's truth.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct TruthErrors {
     /// Angle between the calibrated and the true mirror normal, degrees.
     pub plane_angle_deg: Option<f64>,
@@ -123,16 +130,51 @@ pub struct TruthErrors {
     pub plane_angle_sigma_deg: Option<f64>,
     /// The stated 1-sigma of the hidden object's position, mm.
     pub hidden_object_sigma_mm: Option<f64>,
+    /// Each head camera the calibration found again after it moved: its
+    /// orientation's angle from the truth, degrees, by name.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub head_cameras_deg: Vec<(String, f64)>,
 }
 
 impl TruthErrors {
-    /// Compares `report` with the truth of `data` and of `world`.
-    pub fn of(report: &LiveReport, data: &Dataset, world: &SimWorld) -> Self {
-        let truth_plane = data.truth.mirror.plane;
-        let cal = report.calibration.as_ref();
-        let cams = cal.map(|c| c.mirror_cameras(&data.rig));
-        let plane = cal.and_then(|c| c.plane());
+    /// Compares `report`'s final calibration and located objects with
+    /// `world`, the world as it is at the run's end.
+    pub fn of(report: &LiveReport, world: &SimWorld) -> Self {
         let hidden = world.fixed.iter().find(|f| f.id == HIDDEN_OBJECT_ID);
+        Self {
+            hidden_object_error_mm: hidden.and_then(|h| {
+                report
+                    .located
+                    .get(&h.id)
+                    .map(|p| (nalgebra::Vector3::from(*p) - h.center).norm())
+            }),
+            hidden_object_sigma_mm: hidden
+                .and_then(|h| report.located_sigma_mm.get(&h.id).copied()),
+            ..Self::of_calibration(report.calibration.as_ref(), world)
+        }
+    }
+
+    /// Compares a calibration with `world`, the world it was made in.
+    pub fn of_calibration(cal: Option<&CalibrationFile>, world: &SimWorld) -> Self {
+        let Some(mirror) = world.mirror else {
+            return Self::default();
+        };
+        let truth_plane = mirror.plane;
+        let true_cameras = world.rig.cameras.map(|c| truth_plane.mirror_camera(&c));
+        let cams = cal.map(|c| c.mirror_cameras(&world.rig));
+        let plane = cal.and_then(|c| c.plane());
+        let head_cameras_deg = cal
+            .map(|c| &c.head_cameras)
+            .into_iter()
+            .flatten()
+            .filter_map(|found| {
+                let k = world.rig.names.iter().position(|n| *n == found.name)?;
+                let r = nalgebra::Matrix3::from_row_slice(&found.camera_from_world);
+                let turn = r * world.rig.cameras[k].camera_from_world.transpose();
+                let angle = nalgebra::Rotation3::from_matrix(&turn).angle().to_degrees();
+                Some((found.name.clone(), angle))
+            })
+            .collect();
         Self {
             plane_angle_deg: plane.map(|p| {
                 p.normal
@@ -142,25 +184,79 @@ impl TruthErrors {
                     .to_degrees()
             }),
             plane_distance_mm: plane.map(|p| (p.distance - truth_plane.distance).abs()),
-            camera_center_mm: cams.map(|c| {
-                [0, 1].map(|k| (c[k].center - data.truth.mirror_cameras[k].center).norm())
-            }),
-            camera_rotation_deg: cams.map(|c| {
-                [0, 1].map(|k| rotation_error(&c[k], &data.truth.mirror_cameras[k]).to_degrees())
-            }),
-            hidden_object_error_mm: hidden.and_then(|h| {
-                report
-                    .located
-                    .get(&h.id)
-                    .map(|p| (nalgebra::Vector3::from(*p) - h.center).norm())
-            }),
+            camera_center_mm: cams
+                .map(|c| [0, 1].map(|k| (c[k].center - true_cameras[k].center).norm())),
+            camera_rotation_deg: cams
+                .map(|c| [0, 1].map(|k| rotation_error(&c[k], &true_cameras[k]).to_degrees())),
             plane_angle_sigma_deg: cal
                 .and_then(|c| c.uncertainty.as_ref())
                 .and_then(|u| u.plane_angle_deg),
-            hidden_object_sigma_mm: hidden
-                .and_then(|h| report.located_sigma_mm.get(&h.id).copied()),
+            head_cameras_deg,
+            ..Self::default()
         }
     }
+}
+
+/// One epoch of a run whose world changed, against the world of its time.
+#[derive(Debug, Clone, Serialize)]
+pub struct EpochTruth {
+    /// Its number, from 1.
+    pub epoch: u32,
+    /// The pose the change before it was made at (the event's), if any.
+    pub changed_at_pose: Option<u64>,
+    /// What the stage said changed, and at which pose it said the change
+    /// began and was found.
+    pub after: Option<String>,
+    /// See `after`.
+    pub began_at_pose: u64,
+    /// See `after`.
+    pub found_at_pose: Option<u64>,
+    /// Poses of the plan from the change to where it was found (1: the
+    /// first pose after it).
+    pub found_after_poses: Option<usize>,
+    /// Its last calibration against the world of its time.
+    #[serde(flatten)]
+    pub truth: TruthErrors,
+}
+
+/// Where the world changed during a run: each epoch's last calibration
+/// against the world of its time (empty when nothing changed).
+pub fn epoch_lines(results: &[PlacementResult]) -> String {
+    let mut s = String::new();
+    for r in results.iter().filter(|r| !r.epochs.is_empty()) {
+        if s.is_empty() {
+            s += "\nWhen the world changed: each epoch's calibration against the world of its time\n";
+        }
+        for e in &r.epochs {
+            let change = match (&e.after, e.changed_at_pose, e.found_at_pose) {
+                (Some(what), changed, Some(found)) => format!(
+                    "after the {what} moved (changed at pose {}, found at pose {found}, {} poses later)",
+                    changed.map_or("-".into(), |p| p.to_string()),
+                    e.found_after_poses.map_or("-".into(), |n| n.to_string())
+                ),
+                _ => "from the start".into(),
+            };
+            let cameras: String = e
+                .truth
+                .head_cameras_deg
+                .iter()
+                .map(|(name, deg)| {
+                    format!(", camera {name} found again {deg:.3} deg from the truth")
+                })
+                .collect();
+            s += &format!(
+                "  mirror {}, epoch {} {change}: plane {} deg / {} mm from the truth{cameras}\n",
+                r.mirror,
+                e.epoch,
+                fine(e.truth.plane_angle_deg),
+                fine(e.truth.plane_distance_mm),
+            );
+        }
+        if let Some(why) = r.report.as_ref().and_then(|rep| rep.last_error.as_ref()) {
+            s += &format!("  mirror {}: {why}\n", r.mirror);
+        }
+    }
+    s
 }
 
 /// A small angle: three decimals.

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use formats::plan::PlannedPose;
 use geometry::Role;
-use geometry::sim::{Counts, Dataset, SimWorld, generate, nico_noise, nico_scene};
+use geometry::sim::{Counts, Dataset, generate, nico_noise, nico_scene};
 use messages::CalibrationMsg;
 use messages::topics::{self, TopicId};
 use mirror_proc::live::LiveReport;
@@ -81,7 +81,10 @@ pub(crate) fn plan_for(config: &Config, mirror: usize) -> Result<(Dataset, Vec<P
             q: s.joints.clone().unwrap_or_default(),
         })
     })
-    .collect();
+    .collect::<Vec<_>>();
+    let mut plan = plan;
+    let events = crate::events::of_placement(&config.events, mirror);
+    crate::events::extend_plan(&mut plan, &events, mirror, config.seed)?;
     Ok((data, plan))
 }
 
@@ -98,7 +101,7 @@ struct Concluding<'a, 'b> {
     stage_report: Option<&'a Path>,
     /// The recording, where the recorder runs here.
     recording: Option<PathBuf>,
-    data: &'a Dataset,
+    plan: &'a [PlannedPose],
     started: Instant,
 }
 
@@ -221,6 +224,10 @@ impl Run {
                 mirror,
                 fps: config.fps,
                 look: config.look,
+                changes: crate::events::changes(
+                    &crate::events::of_placement(&config.events, mirror),
+                    &plan,
+                ),
                 ..Default::default()
             }
             .into(),
@@ -341,7 +348,7 @@ impl Run {
             dir: &dir,
             stage_report: mirror_here.then_some(report_path.as_path()),
             recording: recorded_here.then_some(recording),
-            data: &data,
+            plan: &plan,
             started,
         })
     }
@@ -408,7 +415,7 @@ impl Run {
     ) -> Result<PlacementResult> {
         let config = &self.config;
         let dir = self.out.clone();
-        let (data, plan) = plan_for(config, mirror)?;
+        let (_, plan) = plan_for(config, mirror)?;
         let rig = dir.join("rig.toml");
         let report_path = dir.join("mirror_report.json");
         let recording = dir.join("recording.mcap");
@@ -510,7 +517,7 @@ impl Run {
             dir: &dir,
             stage_report: Some(&report_path),
             recording: self.record.then_some(recording),
-            data: &data,
+            plan: &plan,
             started,
         })
     }
@@ -528,7 +535,7 @@ impl Run {
             dir,
             stage_report: report_path,
             recording,
-            data,
+            plan,
             started,
         } = c;
         let outcome = self.follow(&mut supervisor, bus, mirror, total, time);
@@ -563,14 +570,19 @@ impl Run {
                 .with_context(|| format!("{}: unreadable", path.display()))
             })
             .transpose()?;
-        let truth = match &report {
-            Some(report) => Some(TruthErrors::of(report, data, &SimWorld::nico(mirror)?)),
-            None => None,
+        let events = crate::events::of_placement(&self.config.events, mirror);
+        let worlds = crate::events::worlds(&events, plan, mirror)?;
+        let last_world = &worlds[worlds.len() - 1].1;
+        let truth = report.as_ref().map(|r| TruthErrors::of(r, last_world));
+        let epochs = match &report {
+            Some(r) if !events.is_empty() => crate::events::epoch_truths(r, &worlds, plan),
+            _ => Vec::new(),
         };
         Ok(PlacementResult {
             mirror,
             report,
             truth,
+            epochs,
             restarts: stopped.restarts,
             seconds: started.elapsed().as_secs_f64(),
             recording: recording.filter(|_| recorded),

@@ -414,11 +414,12 @@ mod tests {
         assert_eq!(
             argv(&stages[1]),
             "run --prefix p --rig r.toml --method joint --min-train 12 --settle-ms 30 \
-             --report out/report.json --journal out/journal.mcap"
+             --report out/report.json --journal out/journal.mcap --no-drift-watch"
         );
         assert_eq!(
             argv(&stages[3]),
-            "sim --prefix p --mirror 2 --fps 29.97 --tail-frames 5 --look clean --mjpeg 80"
+            "sim --prefix p --mirror 2 --fps 29.97 --tail-frames 5 --look clean --mjpeg 80 \
+             --change 10004:mirror:1:-2.5 --change 30002:camera:0:0.3:roll"
         );
         assert_eq!(
             argv(&stages[4]),

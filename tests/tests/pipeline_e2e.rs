@@ -2,6 +2,8 @@
 //! mirror stage and recorder over iceoryx2, started by the launcher; then
 //! replays of its recording.
 
+#[path = "pipeline_e2e/drift.rs"]
+mod drift;
 #[path = "pipeline_e2e/faults.rs"]
 mod faults;
 #[path = "pipeline_e2e/recording.rs"]

@@ -12,7 +12,8 @@ mod world;
 
 pub use world::{
     ARM_MARKER_ID, Facing, FixedMarker, HIDDEN_OBJECT_ID, MARKER_MARGIN_MM, MARKER_SIZE_MM,
-    ROBOT_BODY_MM, SeenCard, SimWorld, card_corners, line_through_box, segment_meets_box,
+    ROBOT_BODY_MM, SeenCard, SimWorld, WorldChange, card_corners, line_through_box,
+    segment_meets_box,
 };
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};

@@ -161,6 +161,61 @@ impl SimWorld {
     }
 }
 
+/// A change of the simulated world during a run: what a robot's world does
+/// to its calibration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum WorldChange {
+    /// The mirror is turned `tilt_deg` about its width axis through its
+    /// centre, then moved `shift_mm` along its normal towards the robot
+    /// ([`Mirror::moved`]).
+    Mirror {
+        /// Turn, degrees.
+        tilt_deg: f64,
+        /// Shift, mm.
+        shift_mm: f64,
+    },
+    /// Head camera `camera` (0 left, 1 right) is turned `rotate_deg` about
+    /// its own `axis` (0 x: tilt, 1 y: pan, 2 z: about the optical axis),
+    /// its centre kept: it was knocked.
+    Camera {
+        /// Which camera.
+        camera: usize,
+        /// Turn, degrees.
+        rotate_deg: f64,
+        /// The camera's axis it turns about.
+        axis: usize,
+    },
+}
+
+impl SimWorld {
+    /// This world after `change`. The marked objects stay where they are.
+    pub fn changed(&self, change: &WorldChange) -> Result<Self, GeometryError> {
+        let mut world = self.clone();
+        match *change {
+            WorldChange::Mirror { tilt_deg, shift_mm } => {
+                let mirror = world.mirror.as_mut().ok_or_else(|| {
+                    GeometryError::Degenerate("no mirror to move in this world".into())
+                })?;
+                *mirror = mirror.moved(tilt_deg, shift_mm);
+            }
+            WorldChange::Camera {
+                camera,
+                rotate_deg,
+                axis,
+            } => {
+                if camera > 1 || axis > 2 {
+                    return Err(GeometryError::Degenerate(format!(
+                        "camera {camera}, axis {axis}: expected camera 0 or 1 and axis 0, 1 or 2"
+                    )));
+                }
+                let w = Vector3::ith(axis, rotate_deg.to_radians());
+                world.rig.cameras[camera] = world.rig.cameras[camera].turned(&w);
+            }
+        }
+        Ok(world)
+    }
+}
+
 /// A spot behind the head (never in direct view) whose card reflection both
 /// cameras see whole through the glass, not hidden by the robot's body: the
 /// first of a fixed grid, nearest the head first.
