@@ -4,77 +4,13 @@
 
 mod common;
 
-use geometry::sim::{Counts, Dataset, NoiseModel, Scene, generate, nico_noise_scaled, nico_scene};
+use geometry::sim::{Counts, nico_scene};
 use geometry::{Role, Sample};
 use messages::{CalibrationMsg, EpochState, Moved};
 use mirror_proc::calibrate::{Method, calibrate};
-use mirror_proc::live::{Live, LiveConfig, Output};
 use nalgebra::{Rotation3, Vector3};
 
-const PIXEL_SIGMA: f64 = 0.2;
-
-fn noise() -> NoiseModel {
-    nico_noise_scaled(PIXEL_SIGMA, 0.007)
-}
-
-/// Pose ids of the world after the change start here (each pose is
-/// sampled once).
-const AFTER_IDS: u64 = 1000;
-
-fn data(scene: &Scene, mirror: usize, counts: Counts, seed: u64, first_id: u64) -> Dataset {
-    let mut d = generate(scene, mirror, &noise(), counts, seed).unwrap();
-    for s in d.train.iter_mut().chain(&mut d.test).chain(&mut d.direct) {
-        s.pose += first_id;
-    }
-    d
-}
-
-/// `a` and `b` taking turns, `per` of `a` to one of `b`.
-fn interleave<'a>(
-    a: impl IntoIterator<Item = (&'a Sample, Role)>,
-    b: impl IntoIterator<Item = (&'a Sample, Role)>,
-    per: usize,
-) -> Vec<(&'a Sample, Role)> {
-    let (a, mut b): (Vec<_>, Vec<_>) = (a.into_iter().collect(), b.into_iter().collect());
-    b.reverse();
-    let mut out = Vec::new();
-    for (i, x) in a.into_iter().enumerate() {
-        out.push(x);
-        if (i + 1) % per == 0
-            && let Some(y) = b.pop()
-        {
-            out.push(y);
-        }
-    }
-    b.reverse();
-    out.extend(b);
-    out
-}
-
-fn roled(samples: &[Sample], role: Role) -> impl Iterator<Item = (&Sample, Role)> {
-    samples.iter().map(move |s| (s, role))
-}
-
-/// What the stage did with a run of `poses`.
-struct Run {
-    calibrations: Vec<CalibrationMsg>,
-    live: Live,
-}
-
-fn run(scene: &Scene, poses: &[(&Sample, Role)]) -> Run {
-    let (joints, detections) = common::streams_of(poses);
-    let mut live = Live::new(scene.rig.clone(), LiveConfig::default());
-    let out = common::run_by_stamp(&mut live, &joints, &detections);
-    assert!(live.finished());
-    let calibrations = out
-        .iter()
-        .filter_map(|o| match o {
-            Output::Calibration(c) => Some(**c),
-            _ => None,
-        })
-        .collect();
-    Run { calibrations, live }
-}
+use common::{AFTER_IDS, Run, data, interleave, roled, run};
 
 /// How many samples after the change (pose index `at` in `poses`) the
 /// drifted calibration came, and the message.

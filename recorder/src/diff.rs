@@ -99,6 +99,67 @@ pub struct DiffReport {
     pub identical: bool,
     /// Per channel, in name order.
     pub channels: Vec<ChannelDiff>,
+    /// How each recording's calibrations went through the epochs of a
+    /// changing world, A then B (empty where nothing changed).
+    pub epochs: [Vec<EpochStep>; 2],
+}
+
+/// A calibration that changed the epoch or its state: where a change of
+/// the world was found, where it was calibrated again, where it stopped.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EpochStep {
+    /// The calibration revision.
+    pub revision: u64,
+    /// Its epoch.
+    pub epoch: u32,
+    /// `calibrated`, `drifted` or `stopped`.
+    pub state: String,
+    /// What moved (`mirror`, `camera 0`, `camera 1`, `head`).
+    pub moved: String,
+    /// Where the change began (drifted) or the epoch began.
+    pub began_at_pose: u64,
+    /// Where the change was found.
+    pub found_at_pose: u64,
+}
+
+/// The epoch steps of a recording's calibrations.
+fn epoch_steps(calibrations: &[Kept]) -> Vec<EpochStep> {
+    let mut steps: Vec<EpochStep> = Vec::new();
+    let mut last = None;
+    for k in calibrations {
+        let Some(Message::Calibration(c)) = decode(Some(TopicId::Calibration), k) else {
+            continue;
+        };
+        let e = c.epoch;
+        if last == Some((e.epoch, e.state)) {
+            continue;
+        }
+        last = Some((e.epoch, e.state));
+        // The first epoch's calibrations, as every one before epochs were stated.
+        if e.moved().is_none_or(|m| m == messages::Moved::Nothing) {
+            continue;
+        }
+        steps.push(EpochStep {
+            revision: c.revision,
+            epoch: e.epoch,
+            state: match e.state() {
+                Some(messages::EpochState::Calibrated) => "calibrated",
+                Some(messages::EpochState::Drifted) => "drifted",
+                Some(messages::EpochState::Stopped) => "stopped",
+                None => "unknown",
+            }
+            .into(),
+            moved: match e.moved() {
+                Some(messages::Moved::Mirror) => "mirror".into(),
+                Some(messages::Moved::Camera) => format!("camera {}", e.camera),
+                Some(messages::Moved::Head) => "head".into(),
+                _ => String::new(),
+            },
+            began_at_pose: e.began_at_pose,
+            found_at_pose: e.found_at_pose,
+        });
+    }
+    steps
 }
 
 fn read_all(path: &Path) -> Result<BTreeMap<String, Vec<Kept>>, ReadError> {
@@ -155,11 +216,15 @@ pub fn diff(a: &Path, b: &Path, channels: Option<&[String]>) -> Result<DiffRepor
             )
         })
         .collect();
+    let steps = |r: &BTreeMap<String, Vec<Kept>>| {
+        epoch_steps(r.get(TopicId::Calibration.name()).unwrap_or(&empty))
+    };
     Ok(DiffReport {
         a: a.display().to_string(),
         b: b.display().to_string(),
         identical: channels.iter().all(|c| c.identical),
         channels,
+        epochs: [steps(&ra), steps(&rb)],
     })
 }
 
@@ -286,6 +351,17 @@ fn fields(m: &Message<'_>) -> Vec<(&'static str, Vec<f64>)> {
                 f(&c.joint_offsets[..(c.dof as usize).min(c.joint_offsets.len())]),
             ),
             ("train_rms_px", vec![c.train_rms_px]),
+            ("epoch", {
+                let e = &c.epoch;
+                vec![
+                    f64::from(e.epoch),
+                    f64::from(e.state),
+                    f64::from(e.moved),
+                    f64::from(e.camera),
+                    e.began_at_pose as f64,
+                    e.found_at_pose as f64,
+                ]
+            }),
             ("uncertainty", {
                 let u = &c.uncertainty;
                 let mut v = vec![u.residual_px, u.plane_angle_deg, u.plane_distance_mm];
@@ -500,6 +576,25 @@ pub fn table(report: &DiffReport) -> String {
                 }
             }
         }
+    }
+    for (name, steps) in ["A", "B"].iter().zip(&report.epochs) {
+        for e in steps {
+            let what = match e.state.as_str() {
+                "drifted" => format!(
+                    "the world changed: the {} moved from pose {} (found at pose {})",
+                    e.moved, e.began_at_pose, e.found_at_pose
+                ),
+                "stopped" => format!("calibration stopped after the {} moved", e.moved),
+                _ => format!(
+                    "epoch {} calibrated, from pose {} (after the {} moved)",
+                    e.epoch, e.began_at_pose, e.moved
+                ),
+            };
+            s += &format!("epochs {name}: revision {}: {what}\n", e.revision);
+        }
+    }
+    if report.epochs[0] != report.epochs[1] {
+        s += "epochs differ between A and B\n";
     }
     let differing = report.channels.iter().filter(|c| !c.identical).count();
     s += &if differing == 0 {

@@ -11,7 +11,10 @@ use foxglove::messages::{
     points_annotation,
 };
 use geometry::{Camera, Rig};
-use messages::{CalibrationMsg, CameraMarkers, Encoding, FrameHeader, JointState, LocatedObject};
+use messages::{
+    CalibrationMsg, CameraMarkers, Encoding, EpochState, FrameHeader, JointState, LocatedObject,
+    Moved,
+};
 use nalgebra::UnitQuaternion;
 
 use crate::channels::Message;
@@ -339,6 +342,7 @@ impl ViewBuilder {
                 .extend(camera_transform(c.stamp_ns, MIRROR_CAMERAS[k], &camera));
         }
         let mut scene = SceneUpdate::default();
+        let alert = epoch_alert(c, &rig.names);
         if c.has_plane != 0 {
             let normal = nalgebra::Vector3::new(c.plane[0], c.plane[1], c.plane[2]);
             if let Ok(plane) = geometry::Plane::new(normal, c.plane[3]) {
@@ -362,7 +366,34 @@ impl ViewBuilder {
                         y: 0.4,
                         z: 0.002,
                     }),
-                    color: color(0.6, 0.8, 1.0, 0.35),
+                    // Red while the world has changed under it.
+                    color: match &alert {
+                        Some((_, true)) => color(1.0, 0.2, 0.1, 0.5),
+                        _ => color(0.6, 0.8, 1.0, 0.35),
+                    },
+                }],
+                ..Default::default()
+            });
+        }
+        if let Some((text, raised)) = alert {
+            scene.entities.push(SceneEntity {
+                timestamp: timestamp(c.stamp_ns),
+                frame_id: WORLD.into(),
+                id: "calibration state".into(),
+                texts: vec![TextPrimitive {
+                    pose: Some(Pose {
+                        position: Some(Vector3::default()),
+                        orientation: quaternion(&UnitQuaternion::identity()),
+                    }),
+                    billboard: true,
+                    font_size: 18.0,
+                    scale_invariant: true,
+                    color: if raised {
+                        color(1.0, 0.25, 0.1, 1.0)
+                    } else {
+                        color(1.0, 1.0, 1.0, 1.0)
+                    },
+                    text,
                 }],
                 ..Default::default()
             });
@@ -495,6 +526,42 @@ fn located(l: &LocatedObject) -> SceneUpdate {
     }
 }
 
+/// What the live view says of a calibration's epoch, and whether it is an
+/// alert (the world changed under it): none for the first epoch's
+/// calibrations, or a recording made before epochs were stated.
+fn epoch_alert(c: &CalibrationMsg, names: &[String; 2]) -> Option<(String, bool)> {
+    let e = &c.epoch;
+    let what = match e.moved() {
+        Some(Moved::Mirror) => "the mirror".to_string(),
+        Some(Moved::Camera) => format!(
+            "the {} camera",
+            names.get(e.camera as usize).map_or("?", String::as_str)
+        ),
+        Some(Moved::Head) => "the head".into(),
+        Some(Moved::Nothing) | None => return None,
+    };
+    Some(match e.state() {
+        Some(EpochState::Drifted) => (
+            format!(
+                "THE WORLD CHANGED: {what} moved (from pose {}, found at pose {}); calibrating again",
+                e.began_at_pose, e.found_at_pose
+            ),
+            true,
+        ),
+        Some(EpochState::Stopped) => (
+            format!("CALIBRATION STOPPED: {what} moved and cannot be found again (see the report)"),
+            true,
+        ),
+        _ => (
+            format!(
+                "epoch {}: calibrated again after {what} moved at pose {}",
+                e.epoch, e.began_at_pose
+            ),
+            false,
+        ),
+    })
+}
+
 /// The 1-sigma ellipsoid of a located object's covariance: its orientation
 /// and semi-axes in metres, or `None` when no covariance is stated.
 fn one_sigma_ellipsoid(l: &LocatedObject) -> Option<(UnitQuaternion<f64>, nalgebra::Vector3<f64>)> {
@@ -516,6 +583,7 @@ fn one_sigma_ellipsoid(l: &LocatedObject) -> Option<(UnitQuaternion<f64>, nalgeb
 #[cfg(test)]
 mod tests {
     use super::*;
+    use foxglove::Decode;
 
     #[test]
     fn a_located_objects_ellipsoid_is_its_covariance() {
@@ -551,5 +619,49 @@ mod tests {
         let old = located(&LocatedObject::default());
         assert_eq!(old.entities[0].spheres.len(), 1);
         assert!(old.entities[0].texts.is_empty());
+    }
+
+    #[test]
+    fn a_drifted_calibration_raises_an_alert_in_the_view() {
+        let rig = geometry::sim::nico_scene().rig;
+        let view = ViewBuilder::new(Some(rig.clone()));
+        let mut c = CalibrationMsg {
+            has_plane: 1,
+            plane: [0.0, 0.0, -1.0, 600.0],
+            ..Default::default()
+        };
+        let texts = |c: &CalibrationMsg| -> Vec<String> {
+            let mut out = Vec::new();
+            view.calibration(c, &mut out);
+            out.iter()
+                .filter(|m| m.topic == ViewTopic::MirrorScene)
+                .filter_map(|m| {
+                    let scene = SceneUpdate::decode(m.data.as_slice()).ok()?;
+                    Some(
+                        scene
+                            .entities
+                            .into_iter()
+                            .flat_map(|e| e.texts)
+                            .map(|t| t.text),
+                    )
+                })
+                .flatten()
+                .collect()
+        };
+        assert!(texts(&c).is_empty(), "no alert in the first epoch");
+        c.epoch = messages::CalibrationEpoch {
+            epoch: 1,
+            state: EpochState::Drifted as u32,
+            moved: Moved::Camera as u32,
+            camera: 0,
+            began_at_pose: 40,
+            found_at_pose: 42,
+        };
+        let alert = texts(&c);
+        assert!(
+            alert.len() == 1
+                && alert[0].contains("left camera moved (from pose 40, found at pose 42)"),
+            "{alert:?}"
+        );
     }
 }

@@ -3,8 +3,9 @@
 #![allow(dead_code)]
 
 use geometry::Sample;
-use messages::{CameraMarkers, JointState, Marker, Phase, Role, StereoDetections};
-use mirror_proc::live::{Live, Output};
+use geometry::sim::{Counts, Dataset, NoiseModel, Scene, generate, nico_noise_scaled};
+use messages::{CalibrationMsg, CameraMarkers, JointState, Marker, Phase, Role, StereoDetections};
+use mirror_proc::live::{Live, LiveConfig, Output};
 
 /// Time per pose: the arm moves for the first 100 ms, then holds.
 pub const POSE_PERIOD_NS: i64 = 300_000_000;
@@ -108,4 +109,75 @@ pub fn run_by_stamp(
         }
     }
     out
+}
+
+/// The detections' noise of the drift tests, px.
+pub const PIXEL_SIGMA: f64 = 0.2;
+
+pub fn noise() -> NoiseModel {
+    nico_noise_scaled(PIXEL_SIGMA, 0.007)
+}
+
+/// Pose ids of the world after the change start here (each pose is
+/// sampled once).
+pub const AFTER_IDS: u64 = 1000;
+
+/// Simulated samples of `scene`'s placement `mirror` at the drift tests'
+/// noise, their pose ids from `first_id`.
+pub fn data(scene: &Scene, mirror: usize, counts: Counts, seed: u64, first_id: u64) -> Dataset {
+    let mut d = generate(scene, mirror, &noise(), counts, seed).unwrap();
+    for s in d.train.iter_mut().chain(&mut d.test).chain(&mut d.direct) {
+        s.pose += first_id;
+    }
+    d
+}
+
+/// `a` and `b` taking turns, `per` of `a` to one of `b`.
+pub fn interleave<'a>(
+    a: impl IntoIterator<Item = (&'a Sample, Role)>,
+    b: impl IntoIterator<Item = (&'a Sample, Role)>,
+    per: usize,
+) -> Vec<(&'a Sample, Role)> {
+    let (a, mut b): (Vec<_>, Vec<_>) = (a.into_iter().collect(), b.into_iter().collect());
+    b.reverse();
+    let mut out = Vec::new();
+    for (i, x) in a.into_iter().enumerate() {
+        out.push(x);
+        if (i + 1) % per == 0
+            && let Some(y) = b.pop()
+        {
+            out.push(y);
+        }
+    }
+    b.reverse();
+    out.extend(b);
+    out
+}
+
+pub fn roled(samples: &[Sample], role: Role) -> impl Iterator<Item = (&Sample, Role)> {
+    samples.iter().map(move |s| (s, role))
+}
+
+/// What the stage did with a run of `poses`.
+pub struct Run {
+    /// Its calibrations, in order.
+    pub calibrations: Vec<CalibrationMsg>,
+    /// The stage at the end.
+    pub live: Live,
+}
+
+/// Feeds the stage the poses' streams by stamp; what it did.
+pub fn run(scene: &Scene, poses: &[(&Sample, Role)]) -> Run {
+    let (joints, detections) = streams_of(poses);
+    let mut live = Live::new(scene.rig.clone(), LiveConfig::default());
+    let out = run_by_stamp(&mut live, &joints, &detections);
+    assert!(live.finished());
+    let calibrations = out
+        .iter()
+        .filter_map(|o| match o {
+            Output::Calibration(c) => Some(**c),
+            _ => None,
+        })
+        .collect();
+    Run { calibrations, live }
 }

@@ -117,4 +117,22 @@ fn a_moved_mirror_and_a_knocked_camera_are_found_and_calibrated_again() {
         "{states:?}"
     );
     assert_eq!(a.last().unwrap().epoch.epoch, 3);
+    // `replay diff` shows the epochs of both, the same.
+    let diff = Command::new(stage_binaries().join("replay"))
+        .args(["diff", recording.to_str().unwrap()])
+        .arg(replayed.join("recording.mcap"))
+        .args(["--channels", "calibration"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&diff.stdout);
+    assert!(diff.status.success(), "{text}");
+    for side in ["A", "B"] {
+        assert!(
+            text.contains(&format!("epochs {side}: revision"))
+                && text.contains("the world changed: the mirror moved from pose")
+                && text.contains("the world changed: the camera 0 moved from pose"),
+            "{text}"
+        );
+    }
+    assert!(!text.contains("epochs differ"), "{text}");
 }
