@@ -109,7 +109,12 @@ pub fn camera_turn(
     let r = residuals(&x).ok_or(GeometryError::NonFinite("camera turn residuals"))?;
     let jacobian =
         lsq::jacobian(&x, residuals).ok_or(GeometryError::NonFinite("camera turn Jacobian"))?;
-    let covariance = lsq::covariance(&jacobian, &r, pixel_sigma * pixel_sigma)?;
+    let mut covariance = lsq::covariance(&jacobian, &r, pixel_sigma * pixel_sigma)?;
+    if covariance.residual_variance <= 0.0 {
+        // A perfect fit says nothing of the noise: the stated noise does.
+        let stated = DVector::from_element(r.len(), pixel_sigma);
+        covariance = lsq::covariance(&jacobian, &stated, pixel_sigma * pixel_sigma)?;
+    }
     if !covariance.undetermined.is_empty() {
         return Err(GeometryError::Degenerate(
             "the points do not determine the camera's turn (too few, or on one ray)".into(),
@@ -185,5 +190,13 @@ mod tests {
             assert!(sigma < 0.05, "axis {i}: sigma {sigma}");
         }
         assert!(camera_turn(&camera, &points[..2], &pixels[..2], 0.2).is_err());
+        // Without noise the stated noise still bounds the sigmas.
+        let exact: Vec<Vector2<f64>> = points.iter().map(|p| knocked.project(p).unwrap()).collect();
+        let found = camera_turn(&camera, &points, &exact, 0.2).unwrap();
+        assert!(
+            found.sigma_deg.iter().all(|s| s.is_finite() && *s > 0.0),
+            "{:?}",
+            found.sigma_deg
+        );
     }
 }

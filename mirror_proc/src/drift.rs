@@ -50,18 +50,22 @@ pub struct Drift {
 /// one in 90 of an unchanged world's reaches it.
 const CHANGED_FROM: f64 = CAP / 2.0;
 
+/// A sample scored: its place in the order samples came (pose ids need
+/// not rise with time) and its pose.
+type Scored = (u64, u64);
+
 /// One CUSUM and where its current run began.
 #[derive(Debug, Clone, Copy, Default)]
 struct Cusum {
     sum: f64,
     /// The first sample of the run, and the first in it scoring
     /// [`CHANGED_FROM`] or more.
-    began_at: Option<u64>,
-    changed_at: Option<u64>,
+    began_at: Option<Scored>,
+    changed_at: Option<Scored>,
 }
 
 impl Cusum {
-    fn push(&mut self, pose: u64, z: f64) {
+    fn push(&mut self, pose: Scored, z: f64) {
         self.sum = (self.sum + z.min(CAP) - ALLOWANCE).max(0.0);
         if self.sum == 0.0 {
             self.began_at = None;
@@ -76,7 +80,7 @@ impl Cusum {
 
     /// Where the change began: a run is often started a sample early by
     /// noise just above the allowance, so its first large score is taken.
-    fn change_point(&self) -> Option<u64> {
+    fn change_point(&self) -> Option<Scored> {
         self.changed_at.or(self.began_at)
     }
 
@@ -97,6 +101,8 @@ pub struct DriftMonitor {
     /// Mirror-view and direct-view CUSUMs, left and right camera.
     mirror: [Cusum; 2],
     direct: [Cusum; 2],
+    /// Samples scored so far.
+    scored: u64,
     found: Option<Drift>,
 }
 
@@ -111,6 +117,7 @@ impl DriftMonitor {
             variance: 0.0,
             mirror: Default::default(),
             direct: Default::default(),
+            scored: 0,
             found: None,
         };
         monitor.watch(rig, monitor.calibration.clone(), min_sigma_px);
@@ -156,8 +163,10 @@ impl DriftMonitor {
             View::Mirror => &mut self.mirror,
             View::Direct => &mut self.direct,
         };
+        self.scored += 1;
+        let at = (self.scored, sample.pose);
         for (k, e) in errors.iter().enumerate() {
-            sums[k].push(sample.pose, e / (2.0 * self.variance));
+            sums[k].push(at, e / (2.0 * self.variance));
         }
         // The first camera whose errors add up: a moved mirror shows in
         // both cameras' mirror views, a knocked camera in its own only.
@@ -178,7 +187,7 @@ impl DriftMonitor {
             .filter(|c| c.alarmed())
             .filter_map(Cusum::change_point)
             .min()
-            .unwrap_or(sample.pose);
+            .map_or(sample.pose, |(_, pose)| pose);
         self.found = Some(Drift {
             moved,
             began_at_pose,

@@ -359,6 +359,16 @@ impl Live {
                 }
             }
         }
+        // Revisions published before the crash are never reused, even if
+        // the replay made fewer (a plan's end it did not see, say).
+        self.revision = self.revision.max(published);
+        if self.stopped.is_none()
+            && journaled.is_some_and(|c| c.epoch.state == EpochState::Stopped as u32)
+        {
+            self.stopped = Some(format!(
+                "calibrating had stopped before the stage restarted (calibration revision {published})"
+            ));
+        }
         self.recovered = Some(Recovery {
             samples: samples.len(),
             train_samples: self.train.len(),
@@ -512,9 +522,10 @@ impl Live {
             match next {
                 Next::Joint => {
                     if let Some(js) = self.joints.pop_front() {
+                        let stamp_ns = js.stamp_ns;
                         self.on_joint_state(js);
                         if self.finished {
-                            self.on_plan_end(&mut out);
+                            self.on_plan_end(stamp_ns, &mut out);
                         }
                     }
                 }
@@ -649,10 +660,10 @@ impl Live {
             self.tests.push(sample);
         }
         let train = sample.role == Role::Train as u32;
-        if self.drifted.is_some() {
-            self.recover(stamp_ns, out);
-        } else if self.stopped.is_some() {
+        if self.stopped.is_some() {
             // Nothing is calibrated or predicted any more.
+        } else if self.drifted.is_some() {
+            self.recover(train, stamp_ns, out);
         } else if !train {
             self.predict(&sample, out);
         } else if self.train.len() - self.epoch.train_from >= self.config.min_train {
@@ -713,13 +724,14 @@ impl Live {
 
     /// After a change: finds the moved cameras again once enough direct
     /// views have come, and calibrates the new epoch once enough training
-    /// samples have.
-    fn recover(&mut self, stamp_ns: i64, out: &mut Vec<Output>) {
+    /// samples have (tried again on each new one, `train`, while it fails).
+    fn recover(&mut self, train: bool, stamp_ns: i64, out: &mut Vec<Output>) {
         let (Some(d), Some(old)) = (self.drifted.clone(), self.calibration.clone()) else {
             return;
         };
         let moved = epochs::cameras_moved(&self.rig, &d.drift.moved);
         let new_train = self.train.len() - d.train_from;
+        let mut fresh = train;
         if !moved.is_empty() && !d.cameras_found {
             let direct = self.tests[d.tests_from..]
                 .iter()
@@ -768,6 +780,7 @@ impl Live {
             if let Some(d) = self.drifted.as_mut() {
                 d.cameras_found = true;
             }
+            fresh = true;
             // The mirror did not move: its plane gives the moved camera's
             // mirror camera at once.
             if new_train < self.config.min_train
@@ -777,7 +790,7 @@ impl Live {
                 return;
             }
         }
-        if new_train < self.config.min_train {
+        if new_train < self.config.min_train || !fresh {
             return;
         }
         let samples: Vec<Sample> = self.train[d.train_from..]
@@ -818,10 +831,12 @@ impl Live {
             samples = cal.samples,
             "calibrated again after the change"
         );
+        self.last_error = None;
         self.publish_calibration(cal, stamp_ns, out);
     }
 
-    /// Calibrating cannot go on after the change: says why, once.
+    /// Calibrating cannot go on after the change: says why, once. The
+    /// change stays on record: the epoch it ended ends there.
     fn stop(&mut self, why: String, stamp_ns: i64, out: &mut Vec<Output>) {
         tracing::warn!("calibration stopped: {why}");
         self.stopped = Some(why.clone());
@@ -831,13 +846,13 @@ impl Live {
             let msg = self.calibration_msg(cal, stamp_ns, self.revision);
             out.push(Output::Calibration(Box::new(msg)));
         }
-        self.drifted = None;
     }
 
-    /// At the plan's end: a change not yet calibrated again stops the
-    /// calibration, with the reason.
-    fn on_plan_end(&mut self, out: &mut Vec<Output>) {
-        let Some(d) = self.drifted.clone() else {
+    /// At the plan's end (stamped `stamp_ns`, the joint state's that
+    /// ended it, so that a replay stamps it alike): a change not yet
+    /// calibrated again stops the calibration, with the reason.
+    fn on_plan_end(&mut self, stamp_ns: i64, out: &mut Vec<Output>) {
+        let Some(d) = self.drifted.clone().filter(|_| self.stopped.is_none()) else {
             return;
         };
         let what = epochs::describe(&d.drift.moved);
@@ -864,8 +879,7 @@ impl Live {
                     .map_or(String::new(), |e| format!(" ({e})"))
             )
         };
-        let stamp = self.last_detection_stamp.max(self.last_joint_stamp);
-        self.stop(why, stamp, out);
+        self.stop(why, stamp_ns, out);
     }
 
     fn recalibrate(&mut self, stamp_ns: i64, out: &mut Vec<Output>) {

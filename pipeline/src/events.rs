@@ -250,14 +250,15 @@ pub fn worlds(
 
 /// Each epoch of `report` against the world of its time: the world in
 /// force where the change that began it was found (the first's: the
-/// world at the start).
+/// world at the start). A change made within an epoch that no later epoch
+/// began from went unnoticed: it is named in that epoch's truth.
 pub fn epoch_truths(
     report: &mirror_proc::live::LiveReport,
     worlds: &[(Option<u64>, SimWorld)],
     plan: &[PlannedPose],
 ) -> Vec<crate::report::EpochTruth> {
     let index = |id: u64| plan.iter().position(|p| p.pose == id);
-    report
+    let mut truths: Vec<crate::report::EpochTruth> = report
         .epochs
         .iter()
         .map(|e| {
@@ -283,8 +284,24 @@ pub fn epoch_truths(
                 began_at_pose: e.began_at_pose,
                 found_at_pose: e.found_at_pose,
                 found_after_poses,
+                unnoticed_changes: Vec::new(),
                 truth: crate::report::TruthErrors::of_calibration(e.calibration.as_ref(), world),
             }
         })
-        .collect()
+        .collect();
+    let claimed: Vec<u64> = truths.iter().filter_map(|t| t.changed_at_pose).collect();
+    let starts: Vec<usize> = truths
+        .iter()
+        .map(|t| t.changed_at_pose.and_then(index).unwrap_or(0))
+        .collect();
+    for (i, t) in truths.iter_mut().enumerate() {
+        let end = starts.get(i + 1).copied().unwrap_or(plan.len());
+        t.unnoticed_changes = worlds
+            .iter()
+            .filter_map(|(from, _)| *from)
+            .filter(|f| !claimed.contains(f))
+            .filter(|&f| index(f).is_some_and(|at| at > starts[i] && at < end))
+            .collect();
+    }
+    truths
 }

@@ -211,9 +211,13 @@ pub struct EpochTruth {
     pub began_at_pose: u64,
     /// See `after`.
     pub found_at_pose: Option<u64>,
-    /// Poses of the plan from the change to where it was found (1: the
-    /// first pose after it).
+    /// Poses of the plan from the change to where it was found, both
+    /// counted (1: found at the first pose of the changed world).
     pub found_after_poses: Option<usize>,
+    /// Changes made within the epoch that were never found (pose ids):
+    /// its calibration is scored against the world it began in.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub unnoticed_changes: Vec<u64>,
     /// Its last calibration against the world of its time.
     #[serde(flatten)]
     pub truth: TruthErrors,
@@ -230,7 +234,7 @@ pub fn epoch_lines(results: &[PlacementResult]) -> String {
         for e in &r.epochs {
             let change = match (&e.after, e.changed_at_pose, e.found_at_pose) {
                 (Some(what), changed, Some(found)) => format!(
-                    "after the {what} moved (changed at pose {}, found at pose {found}, {} poses later)",
+                    "after the {what} moved (changed at pose {}, found at pose {found}: within {} poses)",
                     changed.map_or("-".into(), |p| p.to_string()),
                     e.found_after_poses.map_or("-".into(), |n| n.to_string())
                 ),
@@ -244,8 +248,13 @@ pub fn epoch_lines(results: &[PlacementResult]) -> String {
                     format!(", camera {name} found again {deg:.3} deg from the truth")
                 })
                 .collect();
+            let unnoticed: String = e
+                .unnoticed_changes
+                .iter()
+                .map(|p| format!("; the world changed unnoticed at pose {p}"))
+                .collect();
             s += &format!(
-                "  mirror {}, epoch {} {change}: plane {} deg / {} mm from the truth{cameras}\n",
+                "  mirror {}, epoch {} {change}: plane {} deg / {} mm from the truth{cameras}{unnoticed}\n",
                 r.mirror,
                 e.epoch,
                 fine(e.truth.plane_angle_deg),

@@ -549,7 +549,9 @@ fn epoch_alert(c: &CalibrationMsg, names: &[String; 2]) -> Option<(String, bool)
             true,
         ),
         Some(EpochState::Stopped) => (
-            format!("CALIBRATION STOPPED: {what} moved and cannot be found again (see the report)"),
+            format!(
+                "CALIBRATION STOPPED: {what} moved and could not be calibrated again (the report says why)"
+            ),
             true,
         ),
         _ => (

@@ -841,13 +841,7 @@ pub(crate) fn camera_errors(
     corrected: &Rig,
     seen: &Seen<'_>,
 ) -> Option<[f64; 2]> {
-    let arm = corrected.arm.as_ref().filter(|_| cal.uses_arm());
-    let point = match (arm, seen.joints) {
-        (Some(arm), Some(q)) => arm
-            .end_effector(q, cal.joint_offsets.as_deref().unwrap_or_default())
-            .ok()?,
-        _ => seen.model_point?,
-    };
+    let point = marker_point(cal, corrected, seen)?;
     let cameras = match seen.view {
         View::Mirror => &cal.placements.get(seen.placement)?.mirror_cameras,
         View::Direct => &corrected.cameras,
@@ -856,6 +850,23 @@ pub(crate) fn camera_errors(
         Some((cameras[k].project(&point).ok()? - seen.pixels[k]).norm_squared())
     };
     Some([error(0)?, error(1)?])
+}
+
+/// Where the marker of `seen` is under `cal` (`corrected` as in
+/// [`camera_errors`]): from the arm where `cal` models it, else its model
+/// point.
+pub(crate) fn marker_point(
+    cal: &Calibration,
+    corrected: &Rig,
+    seen: &Seen<'_>,
+) -> Option<Vector3<f64>> {
+    let arm = corrected.arm.as_ref().filter(|_| cal.uses_arm());
+    match (arm, seen.joints) {
+        (Some(arm), Some(q)) => arm
+            .end_effector(q, cal.joint_offsets.as_deref().unwrap_or_default())
+            .ok(),
+        _ => seen.model_point,
+    }
 }
 
 /// Which samples are consistent with the noise the samples show, from a fit
