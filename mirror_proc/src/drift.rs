@@ -10,6 +10,12 @@
 //! both cameras' mirror views (and not in direct views); a knocked camera
 //! in its own errors only, mirror and direct; both cameras' direct views,
 //! the head or the arm as a whole.
+//!
+//! A change too small for any one sample to show adds up in a second,
+//! structured test (`drift::glr`): the samples since a change point, fitted
+//! with a moved plane or a turned camera.
+
+mod glr;
 
 use geometry::{Rig, Sample, View};
 
@@ -103,6 +109,8 @@ pub struct DriftMonitor {
     direct: [Cusum; 2],
     /// Samples scored so far.
     scored: u64,
+    /// The structured test (a moved plane, a turned camera).
+    glr: glr::Glr,
     found: Option<Drift>,
 }
 
@@ -118,6 +126,7 @@ impl DriftMonitor {
             mirror: Default::default(),
             direct: Default::default(),
             scored: 0,
+            glr: glr::Glr::default(),
             found: None,
         };
         monitor.watch(rig, monitor.calibration.clone(), min_sigma_px);
@@ -167,6 +176,22 @@ impl DriftMonitor {
         let at = (self.scored, sample.pose);
         for (k, e) in errors.iter().enumerate() {
             sums[k].push(at, e / (2.0 * self.variance));
+        }
+        // A small change that adds up over samples, named by the change
+        // that explains it.
+        if let Some(found) = self
+            .glr
+            .push(&self.calibration, &self.rig, &seen, self.variance, at)
+        {
+            self.found = Some(Drift {
+                moved: match found.hypothesis {
+                    glr::Hypothesis::Plane => Moved::Mirror,
+                    glr::Hypothesis::Camera(k) => Moved::Camera(self.rig.names[k].clone()),
+                },
+                began_at_pose: found.began_at.1,
+                found_at_pose: sample.pose,
+            });
+            return self.found.as_ref();
         }
         // The first camera whose errors add up: a moved mirror shows in
         // both cameras' mirror views, a knocked camera in its own only.

@@ -142,3 +142,36 @@ fn a_knocked_camera_is_found_and_named() {
     println!("left camera 0.3 deg: found within {worst} samples");
     assert!(worst <= 5, "{worst}");
 }
+
+/// Changes too small for any one sample to show (their errors stay near
+/// the noise) add up over the samples after them, and are named by the
+/// change that explains them.
+#[test]
+fn small_changes_add_up_and_are_named() {
+    let scene = nico_scene();
+    let mut worst = [0usize; 2];
+    for seed in 0..6 {
+        let m = (seed % 3) as usize;
+        let d = data(&scene, m, 300 + seed);
+        let cal = calibration(&d);
+        let before = stream(&d);
+        let tilted = data(&moved_mirror(&scene, m, 0.05, 0.0), m, 400 + seed);
+        let found = detect(&cal, &d, &before[..10], &tilted.test);
+        let Some((n, Moved::Mirror)) = found else {
+            panic!("seed {seed}, mirror tilted 0.05 deg: {found:?}");
+        };
+        worst[0] = worst[0].max(n);
+        let knocked = data(&knocked_left(&scene, 0.1), m, 400 + seed);
+        let found = detect(&cal, &d, &before[..10], &stream(&knocked));
+        let Some((n, Moved::Camera(name))) = found else {
+            panic!("seed {seed}, left camera turned 0.1 deg: {found:?}");
+        };
+        assert_eq!(name, d.rig.names[0], "seed {seed}");
+        worst[1] = worst[1].max(n);
+    }
+    println!(
+        "mirror tilted 0.05 deg: found within {} samples; left camera 0.1 deg: within {}",
+        worst[0], worst[1]
+    );
+    assert!(worst[0] <= 10 && worst[1] <= 10, "{worst:?}");
+}
