@@ -1,0 +1,133 @@
+//! Our candidate search against OpenCV's own: the border scanner finds every
+//! border `findContours` (`RETR_LIST`, `CHAIN_APPROX_NONE`) finds, point for
+//! point and in the same order, and the detector's candidates are the
+//! quadrilaterals OpenCV 4.6's `detectMarkers` pass gives (its markers and
+//! its rejected candidates, `minMarkerDistanceRate` 0), on realistic
+//! renders and on the real photographs.
+
+use std::path::Path;
+
+use geometry::sim::{Facing, SimWorld, nico_train_poses};
+use opencv::core::{Mat, Point, Point2f, Vector};
+use opencv::imgcodecs;
+use opencv::imgproc;
+use opencv::prelude::*;
+use renderer::Renderer;
+use tracker_proc::contours::BorderScanner;
+use tracker_proc::{Detector, Options};
+
+/// Realistic renders of the arm in the mirror and the photographs.
+fn images() -> Vec<(String, Mat)> {
+    let mut out = Vec::new();
+    let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
+    for (i, q) in nico_train_poses(0, 3, 4).unwrap().iter().enumerate() {
+        let ([l, r], _) = renderer.render_pair(q, Facing::Mirror, i as u64).unwrap();
+        for (k, v) in [l, r].iter().enumerate() {
+            let m = Mat::from_slice(v).unwrap();
+            let m = m.reshape(1, 480).unwrap().try_clone().unwrap();
+            out.push((format!("render {i} camera {k}"), m));
+        }
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/real_markers");
+    let mut photos: Vec<_> = std::fs::read_dir(&root)
+        .unwrap()
+        .map(|d| d.unwrap().path())
+        .filter(|d| d.is_dir())
+        .flat_map(|d| std::fs::read_dir(d).unwrap())
+        .map(|f| f.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "jpg" || e == "png"))
+        .collect();
+    photos.sort();
+    for p in photos {
+        let m = imgcodecs::imread(p.to_str().unwrap(), imgcodecs::IMREAD_GRAYSCALE).unwrap();
+        out.push((p.display().to_string(), m));
+    }
+    out
+}
+
+#[test]
+fn the_border_scanner_finds_what_find_contours_finds() {
+    let mut scanner = BorderScanner::new();
+    let (mut borders, mut points) = (0, 0);
+    for (name, image) in images() {
+        for window in [3, 13, 23] {
+            let mut binary = Mat::default();
+            imgproc::adaptive_threshold(
+                &image,
+                &mut binary,
+                255.0,
+                imgproc::ADAPTIVE_THRESH_MEAN_C,
+                imgproc::THRESH_BINARY_INV,
+                window,
+                7.0,
+            )
+            .unwrap();
+            let mut theirs = Vector::<Vector<Point>>::new();
+            imgproc::find_contours_def(
+                &binary,
+                &mut theirs,
+                imgproc::RETR_LIST,
+                imgproc::CHAIN_APPROX_NONE,
+            )
+            .unwrap();
+            let mut ours: Vec<Vec<Point>> = Vec::new();
+            scanner.scan(
+                binary.data_bytes().unwrap(),
+                binary.cols() as usize,
+                binary.rows() as usize,
+                binary.step1(0).unwrap(),
+                0..=usize::MAX,
+                |p, _| ours.push(p.to_vec()),
+            );
+            assert_eq!(ours.len(), theirs.len(), "{name}, window {window}: borders");
+            for (k, (a, b)) in ours.iter().zip(theirs.iter()).enumerate() {
+                assert_eq!(a, &b.to_vec(), "{name}, window {window}: border {k}");
+                points += a.len();
+            }
+            borders += ours.len();
+        }
+    }
+    println!("{borders} borders, {points} points, all as findContours'");
+}
+
+/// A quadrilateral's corners in a fixed order (OpenCV turns the corners of
+/// the markers it reads to the code's first corner).
+fn key(q: &[Point2f; 4]) -> Vec<(i64, i64)> {
+    let mut k: Vec<_> = q
+        .iter()
+        .map(|p| ((p.x * 16.0) as i64, (p.y * 16.0) as i64))
+        .collect();
+    k.sort();
+    k
+}
+
+#[test]
+fn the_candidates_are_opencvs() {
+    let mut ours = Detector::new(true).unwrap();
+    let mut theirs = Detector::with_options(Options {
+        own_search: false,
+        ..Options::new(true)
+    })
+    .unwrap();
+    let mut total = 0;
+    for (name, image) in images() {
+        let mut a: Vec<_> = ours
+            .candidates(&image)
+            .unwrap()
+            .iter()
+            .map(|(q, _)| key(q))
+            .collect();
+        let mut b: Vec<_> = theirs
+            .candidates(&image)
+            .unwrap()
+            .iter()
+            .map(|(q, _)| key(q))
+            .collect();
+        a.sort();
+        b.sort();
+        assert_eq!(a, b, "{name}");
+        total += a.len();
+    }
+    assert!(total > 100, "{total} candidates");
+    println!("{total} candidates, all as OpenCV's");
+}
