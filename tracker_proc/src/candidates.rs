@@ -13,19 +13,22 @@
 //! ([`crate::decode`]) does instead.
 
 use opencv::aruco::DetectorParameters;
-use opencv::core::{Mat, Point, Point2f, Ptr, Vector};
+use opencv::core::{Point, Point2f, Ptr, Vector};
 use opencv::imgproc;
 use opencv::prelude::*;
 
 use crate::ThresholdWindows;
 use crate::contours::BorderScanner;
 use crate::error::Result;
+use crate::threshold::MeanThreshold;
 
 /// Finds candidate quadrilaterals; keeps its buffers between images.
 #[derive(Default)]
 pub struct CandidateSearch {
     borders: BorderScanner,
-    thresholded: Mat,
+    threshold: MeanThreshold,
+    /// The image's rows, when they are not contiguous (a window's view).
+    rows: Vec<u8>,
 }
 
 /// What a border must be to become a candidate, from `DetectorParameters`.
@@ -61,34 +64,42 @@ impl CandidateSearch {
             min_distance_to_border: params.min_distance_to_border(),
         };
         let mut quads = Vec::new();
+        let (w, h) = (cols as usize, rows as usize);
+        // A window's view into a frame is not contiguous: its rows are copied.
+        let pixels: &[u8] = if grey.is_continuous() {
+            grey.data_bytes()?
+        } else {
+            self.rows.clear();
+            for y in 0..rows {
+                self.rows.extend_from_slice(grey.at_row::<u8>(y)?);
+            }
+            &self.rows
+        };
+        let stride = w;
+        self.threshold
+            .prepare(pixels, w, h, stride, windows.max.max(3) as usize);
         let mut window = windows.min;
         while window <= windows.max {
-            imgproc::adaptive_threshold(
-                grey,
-                &mut self.thresholded,
-                255.0,
-                imgproc::ADAPTIVE_THRESH_MEAN_C,
-                imgproc::THRESH_BINARY_INV,
-                window,
+            let (work, offset, step) = self.borders.frame(w, h);
+            self.threshold.binary_inv(
+                pixels,
+                window as usize,
                 params.adaptive_thresh_constant(),
-            )?;
-            let stride = self.thresholded.step1(0)?;
-            let binary = self.thresholded.data_bytes()?;
-            let mut failed = None;
-            self.borders.scan(
-                binary,
-                cols as usize,
-                rows as usize,
-                stride,
-                shape.lengths.clone(),
-                |points, _| match quad_of(points, &shape, cols, rows) {
-                    Ok(Some(q)) => quads.push(q),
-                    Ok(None) => {}
-                    Err(e) => {
-                        failed.get_or_insert(e);
-                    }
-                },
+                work,
+                offset,
+                step,
             );
+            let mut failed = None;
+            self.borders
+                .scan_framed(w, h, shape.lengths.clone(), |points, _| {
+                    match quad_of(points, &shape, cols, rows) {
+                        Ok(Some(q)) => quads.push(q),
+                        Ok(None) => {}
+                        Err(e) => {
+                            failed.get_or_insert(e);
+                        }
+                    }
+                });
             if let Some(e) = failed {
                 return Err(e.into());
             }

@@ -71,19 +71,49 @@ impl BorderScanner {
         height: usize,
         stride: usize,
         lengths: std::ops::RangeInclusive<usize>,
-        mut visit: impl FnMut(&[Point], bool),
+        visit: impl FnMut(&[Point], bool),
     ) {
         assert!(stride >= width && binary.len() >= stride * height.saturating_sub(1) + width);
-        let step = width + 2;
-        self.work.clear();
-        self.work.resize(step * (height + 2), 0);
+        let (work, offset, step) = self.frame(width, height);
         for y in 0..height {
             let row = &binary[y * stride..y * stride + width];
-            let out = &mut self.work[(y + 1) * step + 1..(y + 1) * step + 1 + width];
+            let out = &mut work[offset + y * step..offset + y * step + width];
             for (o, &b) in out.iter_mut().zip(row) {
                 *o = u8::from(b != 0);
             }
         }
+        self.scan_framed(width, height, lengths, visit);
+    }
+
+    /// The working image for a `width` x `height` binary image, zeroed:
+    /// the buffer, where its first pixel lies, and the bytes per row. Fill
+    /// it with 0 and 1, then [`BorderScanner::scan_framed`].
+    pub fn frame(&mut self, width: usize, height: usize) -> (&mut [u8], usize, usize) {
+        let step = width + 2;
+        self.work.clear();
+        self.work.resize(step * (height + 2), 0);
+        (&mut self.work, step + 1, step)
+    }
+
+    /// [`BorderScanner::scan`] of the image put into the working image
+    /// ([`BorderScanner::frame`]).
+    ///
+    /// # Panics
+    ///
+    /// If the working image is not framed for `width` x `height`.
+    pub fn scan_framed(
+        &mut self,
+        width: usize,
+        height: usize,
+        lengths: std::ops::RangeInclusive<usize>,
+        mut visit: impl FnMut(&[Point], bool),
+    ) {
+        let step = width + 2;
+        assert_eq!(
+            self.work.len(),
+            step * (height + 2),
+            "the working image's size"
+        );
         // Borders in the order they start; `findContours` lists them last first.
         let mut found: Vec<(usize, usize, bool)> = Vec::new();
         let mut all_points: Vec<Point> = Vec::new();

@@ -30,6 +30,7 @@ pub mod real_set;
 pub mod refine;
 pub mod regions;
 pub mod step;
+pub mod threshold;
 
 pub use decode::{
     Checks, CodeBook, Correction, Decoded, Reading, Refusal, quad_center, shortest_side,

@@ -14,6 +14,7 @@ use opencv::imgproc;
 use opencv::prelude::*;
 use renderer::Renderer;
 use tracker_proc::contours::BorderScanner;
+use tracker_proc::threshold::MeanThreshold;
 use tracker_proc::{Detector, Options};
 
 /// Realistic renders of the arm in the mirror and the photographs.
@@ -88,6 +89,40 @@ fn the_border_scanner_finds_what_find_contours_finds() {
         }
     }
     println!("{borders} borders, {points} points, all as findContours'");
+}
+
+#[test]
+fn the_threshold_is_adaptive_thresholds() {
+    let mut ours = MeanThreshold::new();
+    let mut pixels = 0;
+    for (name, image) in images() {
+        let (w, h) = (image.cols() as usize, image.rows() as usize);
+        let grey = image.data_bytes().unwrap();
+        let stride = image.step1(0).unwrap();
+        ours.prepare(grey, w, h, stride, 23);
+        let mut out = vec![0u8; w * h];
+        for window in (3..=23).step_by(2) {
+            let mut theirs = Mat::default();
+            imgproc::adaptive_threshold(
+                &image,
+                &mut theirs,
+                255.0,
+                imgproc::ADAPTIVE_THRESH_MEAN_C,
+                imgproc::THRESH_BINARY_INV,
+                window,
+                7.0,
+            )
+            .unwrap();
+            ours.binary_inv(grey, window as usize, 7.0, &mut out, 0, w);
+            let theirs = theirs.data_bytes().unwrap();
+            let differ = (0..w * h)
+                .filter(|&i| (theirs[i] != 0) != (out[i] != 0))
+                .count();
+            assert_eq!(differ, 0, "{name}, window {window}: pixels that differ");
+            pixels += w * h;
+        }
+    }
+    println!("{pixels} pixels thresholded as adaptiveThreshold does");
 }
 
 /// A quadrilateral's corners in a fixed order (OpenCV turns the corners of
