@@ -256,6 +256,23 @@ fn ratios(_: &mut Criterion) {
         &times,
         n,
     );
+    // Full scans as the stage makes them: both images at once, on two
+    // threads (as the stock pass runs its threshold windows on OpenCV's).
+    let mut every_frame = Tracker::with_full_scan_every(true, 1).unwrap();
+    let times = interleaved(
+        rounds,
+        n,
+        |i| {
+            black_box(track(&mut every_frame, &mut seq, &frames[i]));
+        },
+        stock_pass,
+    );
+    report(
+        "ours (full scans, the two images on two threads) / stock detectMarkers",
+        ["ours", "stock"],
+        &times,
+        n,
+    );
     let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
     let (mut l, mut r) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);
     let mut render = |i: usize| {

@@ -76,6 +76,13 @@ fn main() -> Result<()> {
         ),
         ("+ near misses read as OpenCV reads (ours)", ours),
         (
+            "  ours, OpenCV's candidate search (detectMarkers)",
+            Options {
+                own_search: false,
+                ..ours
+            },
+        ),
+        (
             "  ours, polygon corners",
             Options {
                 refine: Refine::None,

@@ -63,7 +63,6 @@ impl CandidateSearch {
             min_corner_distance_rate: params.min_corner_distance_rate(),
             min_distance_to_border: params.min_distance_to_border(),
         };
-        let mut quads = Vec::new();
         let (w, h) = (cols as usize, rows as usize);
         // A window's view into a frame is not contiguous: its rows are copied.
         let pixels: &[u8] = if grey.is_continuous() {
@@ -78,38 +77,66 @@ impl CandidateSearch {
         let stride = w;
         self.threshold
             .prepare(pixels, w, h, stride, windows.max.max(3) as usize);
-        let mut window = windows.min;
-        while window <= windows.max {
-            let (work, offset, step) = self.borders.frame(w, h);
-            self.threshold.binary_inv(
-                pixels,
-                window as usize,
-                params.adaptive_thresh_constant(),
-                work,
-                offset,
-                step,
-            );
-            let mut failed = None;
-            self.borders
-                .scan_framed(w, h, shape.lengths.clone(), |points, _| {
-                    match quad_of(points, &shape, cols, rows) {
-                        Ok(Some(q)) => quads.push(q),
-                        Ok(None) => {}
-                        Err(e) => {
-                            failed.get_or_insert(e);
-                        }
-                    }
-                });
-            if let Some(e) = failed {
-                return Err(e.into());
-            }
-            window += windows.step.max(1);
+        let sizes: Vec<usize> = (windows.min..=windows.max)
+            .step_by(windows.step.max(1) as usize)
+            .map(|s| s as usize)
+            .collect();
+        let c = params.adaptive_thresh_constant();
+        let threshold = &self.threshold;
+        let image = Image {
+            pixels,
+            width: w,
+            height: h,
+        };
+        let mut quads = Vec::new();
+        for window in sizes {
+            quads.extend(window_quads(
+                &mut self.borders,
+                threshold,
+                &image,
+                window,
+                c,
+                &shape,
+            )?);
         }
         for q in &mut quads {
             clockwise(q);
         }
         Ok(quads)
     }
+}
+
+/// A grey image's pixels, rows contiguous.
+struct Image<'a> {
+    pixels: &'a [u8],
+    width: usize,
+    height: usize,
+}
+
+/// The candidates of one threshold `window` (constant `c`), in the order
+/// OpenCV lists their borders.
+fn window_quads(
+    borders: &mut BorderScanner,
+    threshold: &MeanThreshold,
+    image: &Image<'_>,
+    window: usize,
+    c: f64,
+    shape: &Shape,
+) -> opencv::Result<Vec<[Point2f; 4]>> {
+    let (w, h) = (image.width, image.height);
+    let (work, offset, step) = borders.frame(w, h);
+    threshold.binary_inv(image.pixels, window, c, work, offset, step);
+    let (mut quads, mut failed) = (Vec::new(), None);
+    borders.scan_framed(w, h, shape.lengths.clone(), |points, _| {
+        match quad_of(points, shape, w as i32, h as i32) {
+            Ok(Some(q)) => quads.push(q),
+            Ok(None) => {}
+            Err(e) => {
+                failed.get_or_insert(e);
+            }
+        }
+    });
+    failed.map_or(Ok(quads), Err)
 }
 
 /// The quadrilateral a border outlines, if it passes OpenCV's checks

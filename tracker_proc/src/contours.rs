@@ -85,13 +85,17 @@ impl BorderScanner {
         self.scan_framed(width, height, lengths, visit);
     }
 
-    /// The working image for a `width` x `height` binary image, zeroed:
-    /// the buffer, where its first pixel lies, and the bytes per row. Fill
-    /// it with 0 and 1, then [`BorderScanner::scan_framed`].
+    /// The working image for a `width` x `height` binary image: the
+    /// buffer, where its first pixel lies, and the bytes per row. Fill every
+    /// pixel with 0 or 1, then [`BorderScanner::scan_framed`]; the frame
+    /// around them is zero (tracing marks foreground pixels only, so a
+    /// buffer of the same size is reused as it is).
     pub fn frame(&mut self, width: usize, height: usize) -> (&mut [u8], usize, usize) {
         let step = width + 2;
-        self.work.clear();
-        self.work.resize(step * (height + 2), 0);
+        if self.work.len() != step * (height + 2) {
+            self.work.clear();
+            self.work.resize(step * (height + 2), 0);
+        }
         (&mut self.work, step + 1, step)
     }
 
@@ -122,15 +126,14 @@ impl BorderScanner {
             let mut prev: u8 = 0;
             let mut x = 1;
             while x <= width {
-                // Skip what equals `prev`, eight zeros at a time.
-                if prev == 0 {
-                    while x + 8 <= width + 1
-                        && u64::from_ne_bytes(
-                            self.work[row + x..row + x + 8].try_into().expect("8 bytes"),
-                        ) == 0
-                    {
-                        x += 8;
-                    }
+                // Skip what equals `prev`, eight pixels at a time.
+                let same = u64::from(prev) * 0x0101_0101_0101_0101;
+                while x + 8 <= width + 1
+                    && u64::from_ne_bytes(
+                        self.work[row + x..row + x + 8].try_into().expect("8 bytes"),
+                    ) == same
+                {
+                    x += 8;
                 }
                 while x <= width && self.work[row + x] == prev {
                     x += 1;

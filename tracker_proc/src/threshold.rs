@@ -99,31 +99,33 @@ impl MeanThreshold {
         let delta = c.floor() as i32;
         match Mean::new(n) {
             Mean::FixedPoint { delta: d, scale } => {
-                self.rows(grey, window, delta, out, offset, step, |s| {
-                    ((s + d) * scale) >> SHIFT
+                self.rows(grey, window, out, offset, step, |s, v| {
+                    (((s + d) * scale) >> SHIFT) as i32 >= i32::from(v) + delta
                 })
             }
-            Mean::Nearest { numerator, divisor } => {
-                self.rows(grey, window, delta, out, offset, step, |s| {
-                    ((u64::from(2 * s + numerator) * divisor) >> NEAREST_SHIFT) as u32
+            // round(s / n) >= k, for a whole k, where s / n >= k - 1/2
+            // (never equal: n is odd): 2s >= n (2k - 1).
+            Mean::Nearest => {
+                let n = n as i32;
+                self.rows(grey, window, out, offset, step, |s, v| {
+                    2 * s as i32 >= n * (2 * (i32::from(v) + delta) - 1)
                 })
             }
         }
     }
 
-    /// [`MeanThreshold::binary_inv`] with the mean of a window's sum `s`
-    /// as `mean(s)`: one loop per rounding, so that each vectorises.
-    #[allow(clippy::too_many_arguments)]
+    /// [`MeanThreshold::binary_inv`] with `dark(s, v)` saying whether a
+    /// pixel of value `v` whose window sums to `s` is foreground: one loop
+    /// per rounding, so that each vectorises.
     #[inline(always)]
     fn rows(
         &self,
         grey: &[u8],
         window: usize,
-        delta: i32,
         out: &mut [u8],
         offset: usize,
         step: usize,
-        mean: impl Fn(u32) -> u32,
+        dark: impl Fn(u32, u8) -> bool,
     ) {
         let (width, height) = (self.width, self.height);
         let r = window / 2;
@@ -145,7 +147,7 @@ impl MeanThreshold {
                     .wrapping_sub(ba[x])
                     .wrapping_sub(tb[x])
                     .wrapping_add(ta[x]);
-                dst[x] = u8::from(src[x] as i32 - mean(s) as i32 <= -delta);
+                dst[x] = u8::from(dark(s, src[x]));
             }
         }
     }
@@ -154,9 +156,8 @@ impl MeanThreshold {
 /// The fixed point's shift in OpenCV's `ColumnSum<ushort, uchar>`: its
 /// products stay under 255 * 2^23, within 32 bits.
 const SHIFT: u32 = 23;
-/// The shift of [`Mean::Nearest`]'s division.
-const NEAREST_SHIFT: u32 = 40;
-/// The largest window thresholded exactly, pixels a side.
+/// The largest window, pixels a side: its sums and their products with the
+/// window's size stay within 32 bits.
 pub const MAX_WINDOW: usize = 181;
 
 /// OpenCV's rounding of a window's sum to its mean.
@@ -164,9 +165,9 @@ pub const MAX_WINDOW: usize = 181;
 enum Mean {
     /// `(s + delta) * scale >> 23`: 16-bit sums (windows of up to 256 pixels).
     FixedPoint { delta: u32, scale: u32 },
-    /// The nearest integer to `s / n`: `floor((2s + n) / 2n)`, the division
-    /// as a multiplication by `divisor` and a shift.
-    Nearest { numerator: u32, divisor: u64 },
+    /// The nearest integer to `s / n` (OpenCV's 32-bit sums, for larger
+    /// windows).
+    Nearest,
 }
 
 impl Mean {
@@ -183,13 +184,7 @@ impl Mean {
             }
             Mean::FixedPoint { delta, scale }
         } else {
-            // Exact while (2s + n) * 2n < 2^NEAREST_SHIFT: (511 n) 2n is,
-            // for windows up to MAX_WINDOW.
-            let d = u64::from(2 * n);
-            Mean::Nearest {
-                numerator: n,
-                divisor: (1u64 << NEAREST_SHIFT).div_ceil(d),
-            }
+            Mean::Nearest
         }
     }
 }
