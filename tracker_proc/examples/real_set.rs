@@ -47,6 +47,7 @@ fn main() -> Result<()> {
         reread_refined: false,
         opencv_reading: false,
         refine: Refine::Subpix,
+        own_search: false,
         ..ours
     };
     // Levers added one at a time, then each of ours swapped for an alternative.
@@ -71,17 +72,18 @@ fn main() -> Result<()> {
             "+ edge-line corners",
             Options {
                 opencv_reading: false,
+                own_search: false,
                 ..ours
             },
         ),
-        ("+ near misses read as OpenCV reads (ours)", ours),
         (
-            "  ours, OpenCV's candidate search (detectMarkers)",
+            "+ near misses read as OpenCV reads",
             Options {
                 own_search: false,
                 ..ours
             },
         ),
+        ("+ our candidate search, the same candidates (ours)", ours),
         (
             "  ours, polygon corners",
             Options {
