@@ -54,6 +54,9 @@ impl CandidateSearch {
         params: &Ptr<DetectorParameters>,
     ) -> Result<Vec<[Point2f; 4]>> {
         let (cols, rows) = (grey.cols(), grey.rows());
+        if cols <= 0 || rows <= 0 {
+            return Ok(Vec::new());
+        }
         let larger = f64::from(cols.max(rows));
         // As OpenCV: the limits in whole points, truncated.
         let shape = Shape {

@@ -46,23 +46,29 @@ fn images() -> Vec<(String, Mat)> {
     out
 }
 
+/// OpenCV's threshold as `detectMarkers` makes it (constant 7).
+fn adaptive_threshold(image: &Mat, window: i32) -> Mat {
+    let mut binary = Mat::default();
+    imgproc::adaptive_threshold(
+        image,
+        &mut binary,
+        255.0,
+        imgproc::ADAPTIVE_THRESH_MEAN_C,
+        imgproc::THRESH_BINARY_INV,
+        window,
+        7.0,
+    )
+    .unwrap();
+    binary
+}
+
 #[test]
 fn the_border_scanner_finds_what_find_contours_finds() {
     let mut scanner = BorderScanner::new();
     let (mut borders, mut points) = (0, 0);
     for (name, image) in images() {
         for window in [3, 13, 23] {
-            let mut binary = Mat::default();
-            imgproc::adaptive_threshold(
-                &image,
-                &mut binary,
-                255.0,
-                imgproc::ADAPTIVE_THRESH_MEAN_C,
-                imgproc::THRESH_BINARY_INV,
-                window,
-                7.0,
-            )
-            .unwrap();
+            let binary = adaptive_threshold(&image, window);
             let mut theirs = Vector::<Vector<Point>>::new();
             imgproc::find_contours_def(
                 &binary,
@@ -102,17 +108,7 @@ fn the_threshold_is_adaptive_thresholds() {
         ours.prepare(grey, w, h, stride, 23);
         let mut out = vec![0u8; w * h];
         for window in (3..=23).step_by(2) {
-            let mut theirs = Mat::default();
-            imgproc::adaptive_threshold(
-                &image,
-                &mut theirs,
-                255.0,
-                imgproc::ADAPTIVE_THRESH_MEAN_C,
-                imgproc::THRESH_BINARY_INV,
-                window,
-                7.0,
-            )
-            .unwrap();
+            let theirs = adaptive_threshold(&image, window);
             ours.binary_inv(grey, window as usize, 7.0, &mut out, 0, w);
             let theirs = theirs.data_bytes().unwrap();
             let differ = (0..w * h)
@@ -165,4 +161,19 @@ fn the_candidates_are_opencvs() {
     }
     assert!(total > 100, "{total} candidates");
     println!("{total} candidates, all as OpenCV's");
+}
+
+#[test]
+fn an_empty_or_tiny_image_has_no_candidates() {
+    let mut detector = Detector::new(true).unwrap();
+    for (rows, cols) in [(0, 0), (1, 1), (2, 3), (5, 5)] {
+        let image = Mat::new_rows_cols_with_default(
+            rows,
+            cols,
+            opencv::core::CV_8UC1,
+            opencv::core::Scalar::all(0.0),
+        )
+        .unwrap();
+        assert!(detector.detect(&image).unwrap().is_empty(), "{rows}x{cols}");
+    }
 }
