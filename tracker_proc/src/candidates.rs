@@ -130,7 +130,7 @@ fn window_quads(
     let (work, offset, step) = borders.frame(w, h);
     threshold.binary_inv(image.pixels, window, c, work, offset, step);
     let (mut quads, mut failed) = (Vec::new(), None);
-    borders.scan_framed(w, h, shape.lengths.clone(), |points, _| {
+    borders.scan_framed(w, h, shape.lengths.clone(), |points| {
         match quad_of(points, shape, w as i32, h as i32) {
             Ok(Some(q)) => quads.push(q),
             Ok(None) => {}

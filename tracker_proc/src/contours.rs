@@ -46,6 +46,10 @@ pub struct BorderScanner {
     work: Vec<u8>,
     /// The border being traced, in image pixels.
     points: Vec<Point>,
+    /// The borders handed on, in the order they start: where each begins
+    /// in `kept_points`, and its length.
+    kept: Vec<(usize, usize)>,
+    kept_points: Vec<Point>,
 }
 
 impl BorderScanner {
@@ -56,9 +60,9 @@ impl BorderScanner {
 
     /// Finds every border (outer and hole) of `binary` (`height` rows of
     /// `width` bytes, `stride` apart; non-zero is foreground) and hands each
-    /// whose length in points lies within `lengths` to `visit`, with whether
-    /// it bounds a hole, in the order `findContours` lists them (the reverse
-    /// of the raster order in which they start).
+    /// whose length in points lies within `lengths` to `visit`, in the
+    /// order `findContours` lists them (the reverse of the raster order in
+    /// which they start).
     ///
     /// # Panics
     ///
@@ -71,7 +75,7 @@ impl BorderScanner {
         height: usize,
         stride: usize,
         lengths: std::ops::RangeInclusive<usize>,
-        visit: impl FnMut(&[Point], bool),
+        visit: impl FnMut(&[Point]),
     ) {
         assert!(stride >= width && binary.len() >= stride * height.saturating_sub(1) + width);
         let (work, offset, step) = self.frame(width, height);
@@ -110,7 +114,7 @@ impl BorderScanner {
         width: usize,
         height: usize,
         lengths: std::ops::RangeInclusive<usize>,
-        mut visit: impl FnMut(&[Point], bool),
+        mut visit: impl FnMut(&[Point]),
     ) {
         let step = width + 2;
         assert_eq!(
@@ -119,8 +123,8 @@ impl BorderScanner {
             "the working image's size"
         );
         // Borders in the order they start; `findContours` lists them last first.
-        let mut found: Vec<(usize, usize, bool)> = Vec::new();
-        let mut all_points: Vec<Point> = Vec::new();
+        self.kept.clear();
+        self.kept_points.clear();
         for y in 1..=height {
             let row = y * step;
             let mut prev: u8 = 0;
@@ -148,8 +152,8 @@ impl BorderScanner {
                     let origin = row + x - usize::from(hole);
                     self.trace(origin, step, hole);
                     if lengths.contains(&self.points.len()) {
-                        found.push((all_points.len(), self.points.len(), hole));
-                        all_points.extend_from_slice(&self.points);
+                        self.kept.push((self.kept_points.len(), self.points.len()));
+                        self.kept_points.extend_from_slice(&self.points);
                     }
                     // The scan goes on from the next pixel, against the
                     // start pixel as the trace left it.
@@ -160,8 +164,8 @@ impl BorderScanner {
                 x += 1;
             }
         }
-        for &(start, len, hole) in found.iter().rev() {
-            visit(&all_points[start..start + len], hole);
+        for &(start, len) in self.kept.iter().rev() {
+            visit(&self.kept_points[start..start + len]);
         }
     }
 

@@ -21,6 +21,8 @@ pub struct MeanThreshold {
     height: usize,
     /// Bytes between the image's rows.
     stride: usize,
+    /// One row of the padded image, as the integral is summed.
+    padded_row: Vec<u8>,
 }
 
 impl MeanThreshold {
@@ -50,7 +52,9 @@ impl MeanThreshold {
         let iw = pw + 1;
         self.integral.clear();
         self.integral.resize(iw * (ph + 1), 0);
-        let mut padded_row = vec![0u8; pw];
+        let padded_row = &mut self.padded_row;
+        padded_row.clear();
+        padded_row.resize(pw, 0);
         for y in 0..ph {
             let sy = y.saturating_sub(pad).min(height - 1);
             let row = &grey[sy * stride..sy * stride + width];

@@ -84,7 +84,7 @@ fn the_border_scanner_finds_what_find_contours_finds() {
                 binary.rows() as usize,
                 binary.step1(0).unwrap(),
                 0..=usize::MAX,
-                |p, _| ours.push(p.to_vec()),
+                |p| ours.push(p.to_vec()),
             );
             assert_eq!(ours.len(), theirs.len(), "{name}, window {window}: borders");
             for (k, (a, b)) in ours.iter().zip(theirs.iter()).enumerate() {
