@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use geometry::Rig;
 use messages::now_ns;
 use messages::topics::{self, Topic};
-use runtime::journal::{Journal, JournalError, Recovered};
+use runtime::journal::{Durability, Journal, JournalError, Recovered};
 use runtime::stats::StageStats;
 use runtime::{BusError, Publisher};
 
@@ -108,7 +108,9 @@ impl Outputs {
 /// Opens `path` and resumes `live` from what it holds; returns the journal
 /// and what must be published.
 fn resume(live: &mut Live, path: &Path) -> Result<(Journal, Vec<Output>), JournalError> {
-    let (journal, recovered) = Journal::open(path, &JOURNALED)?;
+    // Synced behind: the append is on the path from frame to sample, and a
+    // sync can wait tens of ms while the recorder fills the disk's cache.
+    let (journal, recovered) = Journal::open_with(path, &JOURNALED, Durability::SyncedBehind)?;
     if recovered == Recovered::default() {
         // A new journal: nothing to resume.
         return Ok((journal, Vec::new()));

@@ -128,6 +128,8 @@ pub struct TruthErrors {
     pub hidden_object_error_mm: Option<f64>,
     /// The stated 1-sigma of the plane angle, degrees.
     pub plane_angle_sigma_deg: Option<f64>,
+    /// The stated 1-sigma of the plane's distance, mm.
+    pub plane_distance_sigma_mm: Option<f64>,
     /// The stated 1-sigma of the hidden object's position, mm.
     pub hidden_object_sigma_mm: Option<f64>,
     /// Each head camera the calibration found again after it moved: its
@@ -191,6 +193,9 @@ impl TruthErrors {
             plane_angle_sigma_deg: cal
                 .and_then(|c| c.uncertainty.as_ref())
                 .and_then(|u| u.plane_angle_deg),
+            plane_distance_sigma_mm: cal
+                .and_then(|c| c.uncertainty.as_ref())
+                .and_then(|u| u.plane_distance_mm),
             head_cameras_deg,
             ..Self::default()
         }
@@ -253,8 +258,15 @@ pub fn epoch_lines(results: &[PlacementResult]) -> String {
                 .iter()
                 .map(|p| format!("; the world changed unnoticed at pose {p}"))
                 .collect();
+            let sigma = match (
+                e.truth.plane_angle_sigma_deg,
+                e.truth.plane_distance_sigma_mm,
+            ) {
+                (Some(a), Some(d)) => format!(" (1-sigma {a:.3} deg / {d:.3} mm)"),
+                _ => String::new(),
+            };
             s += &format!(
-                "  mirror {}, epoch {} {change}: plane {} deg / {} mm from the truth{cameras}{unnoticed}\n",
+                "  mirror {}, epoch {} {change}: plane {} deg / {} mm from the truth{sigma}{cameras}{unnoticed}\n",
                 r.mirror,
                 e.epoch,
                 fine(e.truth.plane_angle_deg),

@@ -40,6 +40,10 @@ fn bench(c: &mut Criterion) {
             Durability::Flushed,
         ),
         ("journal: one sample, synced to disk", Durability::Synced),
+        (
+            "journal: one sample, synced behind by its thread",
+            Durability::SyncedBehind,
+        ),
     ] {
         let path = dir.path().join(format!("{durability:?}.mcap"));
         let (mut journal, _) =
