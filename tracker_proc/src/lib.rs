@@ -385,11 +385,18 @@ impl Detector {
                 }
                 Refine::Subpix => subpix(grey, &quad)?,
             };
-            // A pictogram that lands on a code fills its cells unevenly.
-            if let Some(code) = self.book.code(d.id, d.mirrored)
-                && pattern::misfit(grey, &quad, &code)? > self.options.checks.max_misfit
-            {
-                continue;
+            // A pictogram that lands on a code fills its cells unevenly; a
+            // marker on paper that is not flat only seems to, until the
+            // grid follows its bowed edges.
+            if let Some(code) = self.book.code(d.id, d.mirrored) {
+                let max = self.options.checks.max_misfit;
+                let fits = pattern::misfit(grey, &quad, &code)? <= max
+                    || refine::edge_bows(grey, &quad).is_some_and(|bows| {
+                        pattern::misfit_bent(grey, &quad, &bows, &code).is_ok_and(|m| m <= max)
+                    });
+                if !fits {
+                    continue;
+                }
             }
             let c: Vec<[f64; 2]> = quad
                 .iter()

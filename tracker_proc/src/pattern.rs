@@ -11,8 +11,9 @@
 
 use std::sync::OnceLock;
 
-use nalgebra::{Matrix3, SMatrix, Vector3};
-use opencv::core::{self, Point2f};
+use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
+use opencv::core::{self, Mat, Point2f, Vector};
+use opencv::imgproc;
 use opencv::prelude::*;
 
 use crate::Result;
@@ -33,7 +34,84 @@ const SIDE: usize = CELLS * CELL_PX;
 /// in, so that the surroundings reach it only through the blur.
 pub fn misfit(image: &impl core::ToInputArray, quad: &[Point2f; 4], code: &Bits) -> Result<f64> {
     let warped = warp_cells(image, quad, CELL_PX as i32)?;
-    let pixels = warped.data_bytes()?;
+    Ok(misfit_of(warped.data_bytes()?, code))
+}
+
+/// [`misfit`] of a marker whose edges bow out by `bows` px at their middles
+/// ([`crate::refine::edge_bows`]): the grid is warped so that its outer
+/// edges follow the parabolas, each edge's bow fading linearly to nothing
+/// at the opposite edge. Paper that is not flat bends the cells with its
+/// edges; a pictogram printed flat keeps straight edges, so this is no
+/// easier on it than [`misfit`].
+pub fn misfit_bent(
+    image: &impl core::ToInputArray,
+    quad: &[Point2f; 4],
+    bows: &[f64; 4],
+    code: &Bits,
+) -> Result<f64> {
+    let unit = Vector::<Point2f>::from_iter([
+        Point2f::new(0.0, 0.0),
+        Point2f::new(1.0, 0.0),
+        Point2f::new(1.0, 1.0),
+        Point2f::new(0.0, 1.0),
+    ]);
+    let h = imgproc::get_perspective_transform(
+        &unit,
+        &Vector::<Point2f>::from_iter(*quad),
+        core::DECOMP_LU,
+    )?;
+    let h = Matrix3::from_fn(|r, c| *h.at_2d::<f64>(r as i32, c as i32).unwrap_or(&0.0));
+    let corner = |k: usize| Vector2::new(f64::from(quad[k].x), f64::from(quad[k].y));
+    let center = (0..4).map(corner).sum::<Vector2<f64>>() / 4.0;
+    // Each edge's outward normal.
+    let outward: [Vector2<f64>; 4] = std::array::from_fn(|k| {
+        let (a, b) = (corner(k), corner((k + 1) % 4));
+        let along = (b - a).normalize();
+        let n = Vector2::new(along.y, -along.x);
+        if n.dot(&((a + b) / 2.0 - center)) < 0.0 {
+            -n
+        } else {
+            n
+        }
+    });
+    let n = SIDE as i32;
+    let mut map_x = Mat::new_rows_cols_with_default(n, n, core::CV_32FC1, core::Scalar::all(0.0))?;
+    let mut map_y = map_x.clone();
+    let shape = |t: f64| 4.0 * t * (1.0 - t);
+    for j in 0..SIDE {
+        for i in 0..SIDE {
+            let (u, v) = (
+                (i as f64 + 0.5) / SIDE as f64,
+                (j as f64 + 0.5) / SIDE as f64,
+            );
+            let p = h * Vector3::new(u, v, 1.0);
+            let flat = Vector2::new(p.x / p.z, p.y / p.z);
+            // Edges 0 (top, along u), 1 (right, along v), 2 (bottom, u
+            // backwards), 3 (left, v backwards); the parabola is symmetric.
+            let bent = flat
+                + outward[0] * (bows[0] * shape(u) * (1.0 - v))
+                + outward[1] * (bows[1] * shape(v) * u)
+                + outward[2] * (bows[2] * shape(u) * v)
+                + outward[3] * (bows[3] * shape(v) * (1.0 - u));
+            *map_x.at_2d_mut::<f32>(j as i32, i as i32)? = bent.x as f32;
+            *map_y.at_2d_mut::<f32>(j as i32, i as i32)? = bent.y as f32;
+        }
+    }
+    let mut warped = Mat::default();
+    imgproc::remap(
+        image,
+        &mut warped,
+        &map_x,
+        &map_y,
+        imgproc::INTER_LINEAR,
+        core::BORDER_REPLICATE,
+        core::Scalar::all(0.0),
+    )?;
+    Ok(misfit_of(warped.data_bytes()?, code))
+}
+
+/// [`misfit`] of the rectified square's pixels.
+fn misfit_of(pixels: &[u8], code: &Bits) -> f64 {
     let white = cells(code);
     let y = Square::from_fn(|r, c| f64::from(pixels[(r + INSIDE) * SIDE + c + INSIDE]));
     let mut best = f64::INFINITY;
@@ -47,7 +125,7 @@ pub fn misfit(image: &impl core::ToInputArray, quad: &[Point2f; 4], code: &Bits)
         let outside = Square::from_element(1.0) - reach * reach.transpose();
         best = best.min(relative_residual(&model, &outside, &y));
     }
-    Ok(best)
+    best
 }
 
 /// Pixels of the rectified square left out on each side: half a border cell.
@@ -136,8 +214,7 @@ mod tests {
     use super::*;
     use crate::{Checks, CodeBook, Correction, Detector};
     use opencv::aruco;
-    use opencv::core::{Mat, Point, Rect, Scalar, Size};
-    use opencv::imgproc;
+    use opencv::core::{Point, Rect, Scalar, Size};
 
     /// A white page with `DICT_4X4_50` marker `id` of `side` px at `at`.
     fn page_with_marker(id: i32, side: i32, at: (i32, i32)) -> Mat {
@@ -253,6 +330,145 @@ mod tests {
             let glass = misfit(&image, &quad, &code).unwrap();
             eprintln!("glass, blur {sigma} px: misfit {glass:.3}");
             assert!(glass > max, "the glass's misfit {glass:.3}, blur {sigma}");
+            // Its edges are straight: following them is no easier on it.
+            let bows = crate::refine::edge_bows(&image, &quad).unwrap();
+            let bent = misfit_bent(&image, &quad, &bows, &code).unwrap();
+            assert!(bows.iter().all(|b| b.abs() < 0.5), "{bows:?}");
+            assert!(bent > max, "the glass's misfit along its edges {bent:.3}");
+        }
+    }
+
+    /// Marker `id` (300 px) on a white sheet (400 px), seen in perspective
+    /// with the sheet curled: each point of the sheet `bow` px lower in the
+    /// image at the marker's middle column than flat, nothing at its left
+    /// and right edges. Returns the image and the marker's true corners.
+    fn curled_sheet(id: i32, bow: f64) -> (Mat, [Point2f; 4]) {
+        let dictionary =
+            aruco::get_predefined_dictionary(aruco::PREDEFINED_DICTIONARY_NAME::DICT_4X4_50)
+                .unwrap();
+        let mut marker = Mat::default();
+        aruco::draw_marker(&dictionary, id, 300, &mut marker, 1).unwrap();
+        let mut sheet =
+            Mat::new_rows_cols_with_default(400, 400, core::CV_8U, Scalar::all(255.0)).unwrap();
+        marker
+            .copy_to(&mut Mat::roi_mut(&mut sheet, Rect::new(50, 50, 300, 300)).unwrap())
+            .unwrap();
+        // The sheet's corners in the image: steeply seen, its far edge short.
+        let corners = [
+            (250.0, 120.0),
+            (520.0, 140.0),
+            (600.0, 400.0),
+            (60.0, 380.0),
+        ];
+        let h = imgproc::get_perspective_transform(
+            &Vector::<Point2f>::from_iter(
+                [(0.0, 0.0), (400.0, 0.0), (400.0, 400.0), (0.0, 400.0)]
+                    .map(|(x, y)| Point2f::new(x, y)),
+            ),
+            &Vector::<Point2f>::from_iter(corners.map(|(x, y)| Point2f::new(x, y))),
+            core::DECOMP_LU,
+        )
+        .unwrap();
+        let h = Matrix3::from_fn(|r, c| *h.at_2d::<f64>(r as i32, c as i32).unwrap());
+        let inverse = h.try_inverse().unwrap();
+        let flat_to_sheet = |x: f64, y: f64| {
+            let p = inverse * Vector3::new(x, y, 1.0);
+            (p.x / p.z, p.y / p.z)
+        };
+        let shift = |u: f64| {
+            let t = ((u - 50.0) / 300.0).clamp(0.0, 1.0);
+            bow * 4.0 * t * (1.0 - t)
+        };
+        let (w, h_px) = (640, 480);
+        let mut map_x =
+            Mat::new_rows_cols_with_default(h_px, w, core::CV_32FC1, Scalar::all(0.0)).unwrap();
+        let mut map_y = map_x.clone();
+        for y in 0..h_px {
+            for x in 0..w {
+                // The sheet point seen here: image = H(u, v) + (0, shift(u)),
+                // solved by fixed-point iteration.
+                let (mut u, mut v) = flat_to_sheet(f64::from(x), f64::from(y));
+                for _ in 0..8 {
+                    (u, v) = flat_to_sheet(f64::from(x), f64::from(y) - shift(u));
+                }
+                *map_x.at_2d_mut::<f32>(y, x).unwrap() = u as f32;
+                *map_y.at_2d_mut::<f32>(y, x).unwrap() = v as f32;
+            }
+        }
+        let mut image = Mat::default();
+        imgproc::remap(
+            &sheet,
+            &mut image,
+            &map_x,
+            &map_y,
+            imgproc::INTER_LINEAR,
+            core::BORDER_CONSTANT,
+            Scalar::all(120.0),
+        )
+        .unwrap();
+        let image = blurred(&image, 1.0);
+        let truth = [(50.0, 50.0), (350.0, 50.0), (350.0, 350.0), (50.0, 350.0)].map(|(u, v)| {
+            let p = h * Vector3::new(u, v, 1.0);
+            Point2f::new((p.x / p.z - 0.5) as f32, (p.y / p.z - 0.5) as f32)
+        });
+        (image, truth)
+    }
+
+    #[test]
+    fn a_marker_on_curled_paper_fits_its_code_along_its_bowed_edges() {
+        let book = CodeBook::new(true, Correction::None).unwrap();
+        let max = Checks::default().max_misfit;
+        for bow in [8.0, 14.0] {
+            let (image, truth) = curled_sheet(7, bow);
+            let found = Detector::new(true).unwrap().detect(&image).unwrap();
+            assert_eq!(found.len(), 1, "bow {bow}: {found:?}");
+            assert_eq!(found[0].id, 7);
+            // The corners come from lines fitted to the edges' halves: on a
+            // strongly bowed edge a half's line misses its corner by a few
+            // px (6 at 14 px of bow), which is left as it is.
+            for k in 0..4 {
+                let (x, y) = (found[0].corners[2 * k], found[0].corners[2 * k + 1]);
+                let error = (x - f64::from(truth[k].x)).hypot(y - f64::from(truth[k].y));
+                assert!(
+                    error < if bow < 10.0 { 1.5 } else { 8.0 },
+                    "bow {bow}: corner {k} {error:.2} px from the truth"
+                );
+            }
+            // The edges' bows measured: the top and bottom edges' by the
+            // shift seen along their normals, the sides straight.
+            let quad = truth;
+            let bows = crate::refine::edge_bows(&image, &quad).unwrap();
+            let along_normal = |a: Point2f, b: Point2f| {
+                let (dx, dy) = (f64::from(b.x - a.x), f64::from(b.y - a.y));
+                bow * dx.abs() / dx.hypot(dy)
+            };
+            let (top, bottom) = (
+                along_normal(quad[0], quad[1]),
+                along_normal(quad[2], quad[3]),
+            );
+            assert!(
+                (bows[0] + top).abs() < 0.15 * top,
+                "bow {bow}: {bows:?}, top {top:.2}"
+            );
+            assert!(
+                (bows[2] - bottom).abs() < 0.15 * bottom,
+                "bow {bow}: {bows:?}, bottom {bottom:.2}"
+            );
+            assert!(
+                bows[1].abs() < 0.5 && bows[3].abs() < 0.5,
+                "bow {bow}: {bows:?}"
+            );
+            // The flat grid misfits; the grid that follows the edges fits.
+            let code = book.code(7, false).unwrap();
+            let flat = misfit(&image, &quad, &code).unwrap();
+            let bent = misfit_bent(&image, &quad, &bows, &code).unwrap();
+            eprintln!(
+                "bow {bow} px: misfit flat {flat:.3}, along the edges {bent:.3}; bows {bows:.2?}"
+            );
+            assert!(
+                flat > max && bent < 0.1,
+                "bow {bow}: flat {flat:.3}, bent {bent:.3}"
+            );
         }
     }
 

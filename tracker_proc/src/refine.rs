@@ -277,6 +277,56 @@ pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Opt
     Some(out)
 }
 
+/// How far each edge of a marker bows out at its middle from the straight
+/// line between its corners, px (outward positive; edge k runs from corner
+/// k to corner k + 1): the parabola through both corners fitted to the
+/// edge's points. A marker printed on paper that is not flat, or on a
+/// curved face, bows; a flat one gives a fraction of a pixel. `None` when
+/// an edge gives too few points.
+pub fn edge_bows(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Option<[f64; 4]> {
+    let c: [Vector2<f64>; 4] = corners.map(|p| Vector2::new(f64::from(p.x), f64::from(p.y)));
+    let shortest = (0..4)
+        .map(|k| (c[(k + 1) % 4] - c[k]).norm())
+        .fold(f64::INFINITY, f64::min);
+    let half_width = (0.12 * shortest).max(2.5);
+    let grey = Patch::around(image, &c, half_width + 3.0)?;
+    let center = c.iter().sum::<Vector2<f64>>() / 4.0;
+    let mut bows = [0.0; 4];
+    for (k, bow) in bows.iter_mut().enumerate() {
+        let (a, b) = (c[k], c[(k + 1) % 4]);
+        let length = (b - a).norm();
+        let along = (b - a) / length;
+        let mut outward = Vector2::new(along.y, -along.x);
+        if outward.dot(&((a + b) / 2.0 - center)) < 0.0 {
+            outward = -outward;
+        }
+        let chord = Line {
+            normal: outward,
+            offset: outward.dot(&a),
+        };
+        let band = Band::collect(
+            &grey,
+            (a, b),
+            (END_MARGIN, 1.0 - END_MARGIN),
+            chord,
+            half_width,
+        )?;
+        // Weighted least squares of d = bow * 4t(1 - t).
+        let (mut num, mut den) = (0.0, 0.0);
+        for (p, w) in &band.points {
+            let t = (p - a).dot(&along) / length;
+            let shape = 4.0 * t * (1.0 - t);
+            num += w * shape * (outward.dot(p) - chord.offset);
+            den += w * shape * shape;
+        }
+        if den <= 0.0 {
+            return None;
+        }
+        *bow = num / den;
+    }
+    Some(bows)
+}
+
 /// Per edge of the quadrilateral `c`, the line near its start and the line
 /// near its end (the same line, or with `halves` one over each half),
 /// fitted to the edge points within `half_width` of the lines `about` (of
