@@ -49,8 +49,9 @@ pub struct Args {
     #[arg(long, value_name = "ENDPOINT")]
     pub ros2: Option<String>,
     /// Base SCHED_FIFO priority (1-97) of the stages every sample waits for:
-    /// the camera and arm driver at it, the tracker, kinematics (and bridge)
-    /// one above, the mirror stage two above; 0: normal scheduling
+    /// the tracker (and bridge) one above it, the simulated camera two, the
+    /// kinematics three, the mirror stage four, the arm driver five (the
+    /// heavy stage lowest, a camera's clock above it); 0: normal scheduling
     /// (overrides the config's `realtime_priority`, default 10).
     #[arg(long, value_parser = clap::value_parser!(u8).range(0..=97))]
     pub realtime_priority: Option<u8>,

@@ -37,7 +37,7 @@ impl Stage for ArmDriver {
     /// Its name in logs and reports (it is the user's program).
     const BINARY: &'static str = "arm_driver";
     const HOME: Home = Home::On(Side::Robot);
-    const SAMPLE_PATH_DEPTH: Option<u8> = Some(0);
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(5);
     /// It stops when the plan is finished, or is stopped with the run.
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
 

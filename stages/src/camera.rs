@@ -266,7 +266,9 @@ impl Stage for Camera {
     const BINARY: &'static str = "camera_proc";
     const SUBCOMMAND: Option<&'static str> = Some("sim");
     const HOME: Home = Home::On(Side::Robot);
-    const SAMPLE_PATH_DEPTH: Option<u8> = Some(0);
+    // Above the tracker: it stands for a camera, whose frame clock nothing
+    // on the computer delays (see `Stage::SAMPLE_PATH_DEPTH`).
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(2);
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
 
     fn ports(_: &Args) -> Ports<'_> {

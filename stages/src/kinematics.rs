@@ -84,7 +84,7 @@ impl Stage for Kinematics {
     type Args = Args;
     const BINARY: &'static str = "kinematics_proc";
     const HOME: Home = Home::On(Side::Robot);
-    const SAMPLE_PATH_DEPTH: Option<u8> = Some(1);
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(3);
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
 
     fn ports(_: &Args) -> Ports<'_> {

@@ -111,13 +111,18 @@ pub trait Stage {
     const SUBCOMMAND: Option<&'static str> = None;
     /// Where it runs in a split run.
     const HOME: Home;
-    /// For a stage every sample waits for, how far down the path from
-    /// camera to sample it sits: the camera and the arm driver 0 (a frame's
-    /// stamp is its capture; a frame is paired once a joint state stamped
-    /// after it has come), the tracker, the kinematics and (in a split run)
-    /// the bridge 1, the mirror stage 2. At real-time priority each runs
-    /// that much above the base, so that a frame further along is never
-    /// kept waiting by one behind it. `None`: no sample waits for it.
+    /// For a stage every sample waits for, its rank above the base
+    /// real-time priority. The tracker (and in a split run the bridge), the
+    /// one stage on the path with much work a frame, is lowest, 1; the
+    /// simulated camera above it, 2, as it stands for a camera, whose frame
+    /// clock nothing on the computer delays (below the tracker, its moving
+    /// frames waited behind the tracker's full scans, and above 60 fps some
+    /// were made a period late); above the camera the stages that do little
+    /// a message and that a sample waits for: the kinematics 3, the mirror
+    /// stage 4 (above the tracker, so that one frame's sample never waits
+    /// for the next frame's tracking), the arm driver and the cameras of a
+    /// real robot 5 (a frame is paired once a joint state stamped after it
+    /// has come). `None`: no sample waits for it.
     const SAMPLE_PATH_DEPTH: Option<u8>;
     /// Its restart policy.
     const RESTART: RestartPolicy;

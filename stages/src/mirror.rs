@@ -82,7 +82,7 @@ impl Stage for Mirror {
     const BINARY: &'static str = "mirror_proc";
     const SUBCOMMAND: Option<&'static str> = Some("run");
     const HOME: Home = Home::On(Side::Workstation);
-    const SAMPLE_PATH_DEPTH: Option<u8> = Some(2);
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(4);
     /// It exits when the plan has ended and it has processed everything.
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
 

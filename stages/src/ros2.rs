@@ -93,7 +93,7 @@ impl Stage for Ros2Arm {
     const BINARY: &'static str = "ros2_proc";
     const SUBCOMMAND: Option<&'static str> = Some("arm");
     const HOME: Home = Home::On(Side::Robot);
-    const SAMPLE_PATH_DEPTH: Option<u8> = Some(0);
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(5);
     /// It stops when the plan is finished.
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
     const STOP_GRACE: Duration = Duration::from_secs(3);
@@ -232,7 +232,7 @@ impl Stage for Ros2Camera {
     const BINARY: &'static str = "ros2_proc";
     const SUBCOMMAND: Option<&'static str> = Some("camera");
     const HOME: Home = Home::On(Side::Robot);
-    const SAMPLE_PATH_DEPTH: Option<u8> = Some(0);
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(5);
     /// A live camera runs until the run ends.
     const RESTART: RestartPolicy = RestartPolicy::Service;
 

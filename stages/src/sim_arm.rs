@@ -45,7 +45,7 @@ impl Stage for SimArm {
     type Args = Args;
     const BINARY: &'static str = "sim_arm";
     const HOME: Home = Home::On(Side::Robot);
-    const SAMPLE_PATH_DEPTH: Option<u8> = Some(0);
+    const SAMPLE_PATH_DEPTH: Option<u8> = Some(5);
     /// It stops when the plan is finished, or is stopped with the run.
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
 

@@ -236,8 +236,9 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
             .unwrap();
     let stages = report["placements"][0]["stages"].as_array().unwrap();
     // The stages every sample waits for at the real-time priority the
-    // launcher found allowed (none: normal), further down the path from
-    // camera to sample higher; the recorder niced, its receiving (main)
+    // launcher found allowed (none: normal), the tracker lowest, the
+    // simulated camera above it, the light stages above that; the
+    // recorder niced, its receiving (main)
     // thread at the base priority.
     let realtime = report["realtime_priority"].as_u64();
     for stage in stages {
@@ -247,9 +248,12 @@ fn the_trace_follows_a_frame_through_every_stage_on_one_clock() {
         let name = stage["stage"].as_str().unwrap();
         let scheduling = &cpu["scheduling"];
         let depth = match name {
-            "camera_proc" | "sim_arm" | "recorder" => Some(0),
-            "tracker_proc" | "kinematics_proc" => Some(1),
-            "mirror_proc" => Some(2),
+            "recorder" => Some(0),
+            "tracker_proc" => Some(1),
+            "camera_proc" => Some(2),
+            "kinematics_proc" => Some(3),
+            "mirror_proc" => Some(4),
+            "sim_arm" => Some(5),
             _ => None,
         };
         match (realtime, depth) {
