@@ -60,20 +60,15 @@ pub fn misfit_bent(
         &Vector::<Point2f>::from_iter(*quad),
         core::DECOMP_LU,
     )?;
-    let h = Matrix3::from_fn(|r, c| *h.at_2d::<f64>(r as i32, c as i32).unwrap_or(&0.0));
-    let corner = |k: usize| Vector2::new(f64::from(quad[k].x), f64::from(quad[k].y));
-    let center = (0..4).map(corner).sum::<Vector2<f64>>() / 4.0;
-    // Each edge's outward normal.
-    let outward: [Vector2<f64>; 4] = std::array::from_fn(|k| {
-        let (a, b) = (corner(k), corner((k + 1) % 4));
-        let along = (b - a).normalize();
-        let n = Vector2::new(along.y, -along.x);
-        if n.dot(&((a + b) / 2.0 - center)) < 0.0 {
-            -n
-        } else {
-            n
+    let mut m = Matrix3::zeros();
+    for r in 0..3 {
+        for c in 0..3 {
+            m[(r, c)] = *h.at_2d::<f64>(r as i32, c as i32)?;
         }
-    });
+    }
+    let h = m;
+    let outward =
+        crate::refine::outward_normals(&quad.map(|p| Vector2::new(f64::from(p.x), f64::from(p.y))));
     let n = SIDE as i32;
     let mut map_x = Mat::new_rows_cols_with_default(n, n, core::CV_32FC1, core::Scalar::all(0.0))?;
     let mut map_y = map_x.clone();

@@ -290,16 +290,13 @@ pub fn edge_bows(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Option<[
         .fold(f64::INFINITY, f64::min);
     let half_width = (0.12 * shortest).max(2.5);
     let grey = Patch::around(image, &c, half_width + 3.0)?;
-    let center = c.iter().sum::<Vector2<f64>>() / 4.0;
+    let normals = outward_normals(&c);
     let mut bows = [0.0; 4];
     for (k, bow) in bows.iter_mut().enumerate() {
         let (a, b) = (c[k], c[(k + 1) % 4]);
         let length = (b - a).norm();
         let along = (b - a) / length;
-        let mut outward = Vector2::new(along.y, -along.x);
-        if outward.dot(&((a + b) / 2.0 - center)) < 0.0 {
-            outward = -outward;
-        }
+        let outward = normals[k];
         let chord = Line {
             normal: outward,
             offset: outward.dot(&a),
@@ -338,15 +335,11 @@ fn edge_lines(
     halves: bool,
     half_width: f64,
 ) -> Option<[(Line, Line); 4]> {
-    let center = c.iter().sum::<Vector2<f64>>() / 4.0;
+    let normals = outward_normals(c);
     let mut lines = [(Line::default(), Line::default()); 4];
     for k in 0..4 {
         let (a, b) = (c[k], c[(k + 1) % 4]);
-        let along = (b - a).normalize();
-        let mut outward = Vector2::new(along.y, -along.x);
-        if outward.dot(&((a + b) / 2.0 - center)) < 0.0 {
-            outward = -outward;
-        }
+        let outward = normals[k];
         let edge = Line {
             normal: outward,
             offset: outward.dot(&a),
@@ -366,6 +359,22 @@ fn edge_lines(
         };
     }
     Some(lines)
+}
+
+/// The unit normal of each edge of the quadrilateral `c` (edge k from
+/// corner k to corner k + 1), pointing away from its centre.
+pub(crate) fn outward_normals(c: &[Vector2<f64>; 4]) -> [Vector2<f64>; 4] {
+    let center = c.iter().sum::<Vector2<f64>>() / 4.0;
+    std::array::from_fn(|k| {
+        let (a, b) = (c[k], c[(k + 1) % 4]);
+        let along = (b - a).normalize();
+        let n = Vector2::new(along.y, -along.x);
+        if n.dot(&((a + b) / 2.0 - center)) < 0.0 {
+            -n
+        } else {
+            n
+        }
+    })
 }
 
 /// Where adjacent edges' lines meet: corner k ends edge k - 1 and starts
