@@ -341,11 +341,15 @@ impl Journal {
     }
 
     fn sync(&mut self) -> Result<(), JournalError> {
-        self.file.sync_data().map_err(|source| JournalError::Io {
+        self.file.sync_data().map_err(|e| self.sync_failed(e))
+    }
+
+    fn sync_failed(&self, source: std::io::Error) -> JournalError {
+        JournalError::Io {
             path: self.path.clone(),
             what: "cannot sync to disk",
             source,
-        })
+        }
     }
 
     /// Waits until everything appended is on the disk (at once unless the
@@ -354,11 +358,7 @@ impl Journal {
         let Some(background) = &self.background else {
             return Ok(());
         };
-        background.wait().map_err(|source| JournalError::Io {
-            path: self.path.clone(),
-            what: "cannot sync to disk",
-            source,
-        })
+        background.wait().map_err(|e| self.sync_failed(e))
     }
 
     fn write(
@@ -393,11 +393,7 @@ impl Journal {
         match (durability, &self.background) {
             (Durability::Synced, _) => self.sync()?,
             (Durability::SyncedBehind, Some(background)) => {
-                background.written().map_err(|source| JournalError::Io {
-                    path: self.path.clone(),
-                    what: "cannot sync to disk",
-                    source,
-                })?
+                background.written().map_err(|e| self.sync_failed(e))?
             }
             _ => {}
         }
