@@ -13,16 +13,19 @@
 //! of each second for them whatever happens).
 
 /// The base priority of the stages on the sample's path: `priority` when it
-/// is not 0 and this process may set it (and five above, for the stages
-/// further down the path), else `None`, saying why on stderr.
+/// is not 0 and this process may set it (and the priorities above it up to
+/// the highest stage's rank), else `None`, saying why on stderr.
 pub fn realtime(priority: u8) -> Option<u8> {
-    /// The highest [`stages::StageArgs::sample_path_depth`]: the arm
-    /// driver's.
-    const HIGHEST_DEPTH: u8 = 5;
     if priority == 0 {
         return None;
     }
-    let highest = priority.saturating_add(HIGHEST_DEPTH);
+    // The highest [`stages::StageArgs::sample_path_depth`] of any stage.
+    let highest_rank = stages::StageArgs::examples()
+        .iter()
+        .filter_map(stages::StageArgs::sample_path_depth)
+        .max()
+        .unwrap_or(0);
+    let highest = priority.saturating_add(highest_rank);
     match permitted(highest) {
         Ok(()) => Some(priority),
         Err(e) => {
