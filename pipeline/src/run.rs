@@ -30,6 +30,64 @@ const READY_WITHIN: Duration = Duration::from_secs(30);
 /// subscribe through the bridge): the other host may be started later.
 const OTHER_SIDE_WITHIN: Duration = Duration::from_secs(600);
 
+/// Waits for the stages started so far to listen, and fails the placement
+/// if they do not in time.
+struct Readiness {
+    side: Option<Side>,
+    mirror: usize,
+    /// Whether this side said it waits for the other one.
+    told: bool,
+}
+
+impl Readiness {
+    /// Returns once every started stage has subscribed to what its spec
+    /// says (the caller stops them if not). On a split run that may need the other side (this side's
+    /// bridge subscribes once it is on the link), which may be started
+    /// much later: the wait says so once and is long.
+    fn wait(
+        &mut self,
+        run: &Run,
+        supervisor: &Supervisor<'_>,
+        bus: &Bus,
+        log: &Path,
+    ) -> Result<()> {
+        let mirror = self.mirror;
+        if supervisor.ready(bus)? {
+            return Ok(());
+        }
+        let within = match self.side {
+            Some(side) => {
+                if !std::mem::replace(&mut self.told, true) {
+                    eprintln!(
+                        "mirror {mirror}: {} side up; waiting for the {} side",
+                        side.name(),
+                        side.other().name()
+                    );
+                }
+                OTHER_SIDE_WITHIN
+            }
+            None => READY_WITHIN,
+        };
+        if wait_ready(supervisor, bus, within, &|| run.stopping())? {
+            return Ok(());
+        }
+        if run.stopping() {
+            bail!("interrupted");
+        }
+        let other = self.side.map_or(String::new(), |s| {
+            format!(
+                "; is the {} side running and the link up?",
+                s.other().name()
+            )
+        });
+        bail!(
+            "mirror {mirror}: the stages did not come up within {} s{other} ({})",
+            within.as_secs(),
+            see(log)
+        );
+    }
+}
+
 /// The settings every placement of a run shares.
 pub struct Run {
     /// The run's settings.
@@ -169,8 +227,9 @@ impl Run {
         let bus = Bus::new(&launch.prefix, "pipeline")?;
         let _services = bus.open_all()?;
 
-        // The stage table: consumers first (the recorder first of all, so it
-        // sees every message), then the arm once every consumer listens.
+        // The stage table: consumers first (the recorder first of all), the
+        // sources among them once those before them listen, then the arm
+        // once every consumer listens.
         let prefix = &launch.prefix;
         let mut consumers: Vec<StageArgs> = Vec::new();
         if self.record {
@@ -291,47 +350,32 @@ impl Run {
             "mirror_proc"
         };
         let mut supervisor = Supervisor::new(&launch, ends_run);
-        for stage in consumers {
-            let records = matches!(stage, StageArgs::Recorder(_));
-            supervisor.start(stage)?;
-            // The recorder subscribes before any source starts: a camera
-            // at real-time priority publishes its first frame at once, and
-            // a recorder not yet subscribed missed it. (If it is not ready
-            // in time, the wait below says so.)
-            if records {
-                wait_ready(&supervisor, &bus, READY_WITHIN, &|| self.stopping())?;
-            }
-        }
-        let ready_within = match side {
-            Some(side) => {
-                eprintln!(
-                    "mirror {mirror}: {} side up; waiting for the {} side",
-                    side.name(),
-                    side.other().name()
-                );
-                OTHER_SIDE_WITHIN
-            }
-            None => READY_WITHIN,
+        // A source (a camera, an arm driver) starts only once every stage
+        // before it listens: it publishes at once, and a recorder or a
+        // tracker not yet subscribed would miss its first messages. On a
+        // split run's robot that is when the workstation is up too (the
+        // bridge subscribes once its receivers are on the link).
+        let mut readiness = Readiness {
+            side,
+            mirror,
+            told: false,
         };
-        if !wait_ready(&supervisor, &bus, ready_within, &|| self.stopping())? {
-            supervisor.stop();
-            if self.stopping() {
-                bail!("interrupted");
+        let up = (|| -> Result<()> {
+            for stage in consumers {
+                if stage.is_source() {
+                    readiness.wait(self, &supervisor, &bus, &launch.log)?;
+                }
+                supervisor.start(stage)?;
             }
-            let other = side.map_or(String::new(), |s| {
-                format!(
-                    "; is the {} side running and the link up?",
-                    s.other().name()
-                )
-            });
-            bail!(
-                "mirror {mirror}: the stages did not come up within {} s{other} ({})",
-                ready_within.as_secs(),
-                see(&launch.log)
-            );
-        }
-        for stage in after_ready {
-            supervisor.start(stage)?;
+            readiness.wait(self, &supervisor, &bus, &launch.log)?;
+            for stage in after_ready {
+                supervisor.start(stage)?;
+            }
+            Ok(())
+        })();
+        if let Err(e) = up {
+            supervisor.stop();
+            return Err(e);
         }
         let plan_seconds = plan.len() as f64 * (config.move_ms + config.dwell_ms) as f64 / 1000.0;
         let mut time = Duration::from_secs_f64(plan_seconds * 3.0 + 60.0);

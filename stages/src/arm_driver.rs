@@ -38,6 +38,7 @@ impl Stage for ArmDriver {
     const BINARY: &'static str = "arm_driver";
     const HOME: Home = Home::On(Side::Robot);
     const SAMPLE_PATH_DEPTH: Option<u8> = Some(5);
+    const SOURCE: bool = true;
     /// It stops when the plan is finished, or is stopped with the run.
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
 

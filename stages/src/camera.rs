@@ -269,6 +269,7 @@ impl Stage for Camera {
     // Above the tracker: it stands for a camera, whose frame clock nothing
     // on the computer delays (see `Stage::SAMPLE_PATH_DEPTH`).
     const SAMPLE_PATH_DEPTH: Option<u8> = Some(2);
+    const SOURCE: bool = true;
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
 
     fn ports(_: &Args) -> Ports<'_> {

@@ -124,6 +124,13 @@ pub trait Stage {
     /// real robot 5 (a frame is paired once a joint state stamped after it
     /// has come). `None`: no sample waits for it.
     const SAMPLE_PATH_DEPTH: Option<u8>;
+    /// Whether it publishes what it takes from the world by itself, with
+    /// nothing on the bus asking (a camera, an arm driver): the
+    /// launcher starts it only once every stage started before it
+    /// listens, so that none of them misses its first messages (a tracker
+    /// that saw frames a recorder did not could not be replayed bit for
+    /// bit).
+    const SOURCE: bool = false;
     /// Its restart policy.
     const RESTART: RestartPolicy;
     /// How long it may take to stop after SIGINT before it is killed.
@@ -227,6 +234,10 @@ macro_rules! stage_table {
             /// [`Stage::SAMPLE_PATH_DEPTH`].
             pub fn sample_path_depth(&self) -> Option<u8> {
                 match self { $(StageArgs::$variant(_) => <$stage>::SAMPLE_PATH_DEPTH,)* }
+            }
+            /// [`Stage::SOURCE`].
+            pub fn is_source(&self) -> bool {
+                match self { $(StageArgs::$variant(_) => <$stage>::SOURCE,)* }
             }
             /// [`Stage::RESTART`].
             pub fn restart_policy(&self) -> RestartPolicy {

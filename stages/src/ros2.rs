@@ -94,6 +94,7 @@ impl Stage for Ros2Arm {
     const SUBCOMMAND: Option<&'static str> = Some("arm");
     const HOME: Home = Home::On(Side::Robot);
     const SAMPLE_PATH_DEPTH: Option<u8> = Some(5);
+    const SOURCE: bool = true;
     /// It stops when the plan is finished.
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
     const STOP_GRACE: Duration = Duration::from_secs(3);
@@ -233,6 +234,7 @@ impl Stage for Ros2Camera {
     const SUBCOMMAND: Option<&'static str> = Some("camera");
     const HOME: Home = Home::On(Side::Robot);
     const SAMPLE_PATH_DEPTH: Option<u8> = Some(5);
+    const SOURCE: bool = true;
     /// A live camera runs until the run ends.
     const RESTART: RestartPolicy = RestartPolicy::Service;
 

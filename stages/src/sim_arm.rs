@@ -46,6 +46,7 @@ impl Stage for SimArm {
     const BINARY: &'static str = "sim_arm";
     const HOME: Home = Home::On(Side::Robot);
     const SAMPLE_PATH_DEPTH: Option<u8> = Some(5);
+    const SOURCE: bool = true;
     /// It stops when the plan is finished, or is stopped with the run.
     const RESTART: RestartPolicy = RestartPolicy::Finishes;
 

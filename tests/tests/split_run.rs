@@ -92,6 +92,9 @@ impl SplitRun {
     }
 }
 
+/// How long after the robot side the workstation side is started.
+const WORKSTATION_LATER: Duration = Duration::from_secs(3);
+
 /// Runs `config` (written to `DIR/pipeline.toml`) split: the robot side on
 /// host 0, its clock a day ahead, the workstation side on host 1; checks
 /// that neither side has anything in this host's shared memory while they
@@ -154,6 +157,10 @@ fn split_run(config: &str, name: &str, one_host: bool) -> SplitRun {
         (KillOnDrop(child), log)
     };
     let (mut robot, robot_log) = side(0, AHEAD_S, "robot", "--listen", &robot_prefix);
+    // The workstation comes up a while after the robot, as two hosts
+    // started by hand do: the robot's camera and arm wait for it, so that
+    // its recording holds every frame the robot's tracker sees.
+    std::thread::sleep(WORKSTATION_LATER);
     let (mut ws, ws_log) = side(1, 0, "workstation", "--connect", &ws_prefix);
 
     let all_logs = [
