@@ -12,14 +12,15 @@
 //! the spread over rounds says how far to trust it. Both are timed by the
 //! clock and by the CPU time they take: the stock pass runs its threshold
 //! scales on OpenCV's threads, ours runs the two images on two threads. The renderer is timed
-//! against the tracker the same way. Then what each pass finds of the
+//! against the tracker the same way, on these frames and on its worst
+//! case, the moves between direct poses at 90 fps. Then what each pass finds of the
 //! renderer's truth, and how far its centres are from it.
 //! Run: `cargo bench -p tracker_proc --bench detect`.
 
 use cpu_time::ProcessTime;
 use criterion::{Criterion, criterion_group, criterion_main};
+use geometry::sim::{Counts, generate, nico_noise, nico_scene, nico_train_poses, sweep};
 use geometry::sim::{Facing, SimWorld};
-use geometry::sim::{nico_train_poses, sweep};
 use messages::{Encoding, FrameHeader, Marker, StereoDetections};
 use opencv::core::Mat;
 use opencv::prelude::*;
@@ -39,6 +40,13 @@ fn sequence() -> Vec<(Vec<f64>, Vec<f64>)> {
     sweep(&poses(), 4, 6, 30.0)
 }
 
+/// The direct poses whose moves are rendered at 90 fps.
+const DIRECT_MOVES: Counts = Counts {
+    train: 0,
+    test: 0,
+    direct: 12,
+};
+
 /// One rendered stereo frame: the images, as one payload, and the truth.
 struct Frame {
     images: [Mat; 2],
@@ -46,7 +54,7 @@ struct Frame {
     truth: RenderTruth,
 }
 
-fn frames(sequence: &[(Vec<f64>, Vec<f64>)]) -> Vec<Frame> {
+fn frames(sequence: &[(Vec<f64>, Vec<f64>)], faces: Facing) -> Vec<Frame> {
     let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
     sequence
         .iter()
@@ -54,7 +62,7 @@ fn frames(sequence: &[(Vec<f64>, Vec<f64>)]) -> Vec<Frame> {
         .map(|(i, (q, speed))| {
             let (mut l, mut r) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);
             let truth = renderer
-                .render_moving(q, Some(speed), Facing::Mirror, i as u64, &mut l, &mut r)
+                .render_moving(q, Some(speed), faces, i as u64, &mut l, &mut r)
                 .unwrap();
             let mat = |v: &[u8]| {
                 Mat::from_slice(v)
@@ -213,7 +221,7 @@ fn ratios(_: &mut Criterion) {
         1
     };
     let sequence = sequence();
-    let frames = frames(&sequence);
+    let frames = frames(&sequence, Facing::Mirror);
     let n = frames.len();
     let stock = StockPass::new().unwrap();
     let mut tracker = Tracker::new(true).unwrap();
@@ -304,6 +312,42 @@ fn ratios(_: &mut Criterion) {
         &times,
         n,
     );
+    // The renderer's worst case: the moves between direct poses (the card
+    // near the head, turned to it) as the e2e bench's 90 fps run makes
+    // them (100 ms moves, 9 frames each; no still frames), against the
+    // tracker on the same frames.
+    let direct = generate(&nico_scene(), 0, &nico_noise(), DIRECT_MOVES, 3).unwrap();
+    let direct: Vec<Vec<f64>> = direct
+        .direct
+        .iter()
+        .filter_map(|s| s.joints.clone())
+        .collect();
+    let fast = sweep(&direct, 9, 0, 90.0);
+    let fast_frames = self::frames(&fast, Facing::Head);
+    let mut fast_tracker = Tracker::new(true).unwrap();
+    let mut fast_seq = 0u64;
+    let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
+    let times = interleaved(
+        rounds,
+        fast.len(),
+        |i| {
+            let (q, speed) = &fast[i];
+            black_box(
+                renderer
+                    .render_moving(q, Some(speed), Facing::Head, i as u64, &mut l, &mut r)
+                    .unwrap(),
+            );
+        },
+        |i| {
+            black_box(track(&mut fast_tracker, &mut fast_seq, &fast_frames[i]));
+        },
+    );
+    report(
+        "render / track (moves between direct poses at 90 fps, region tracking)",
+        ["render", "track"],
+        &times,
+        fast.len(),
+    );
     // What each pass finds, from a fresh start over the sequence.
     let mut tracker = Tracker::new(true).unwrap();
     let ours = |m: &Marker| (m.id, Some(m.mirrored == 1), m.center);
@@ -360,7 +404,7 @@ fn ratios(_: &mut Criterion) {
 }
 
 fn bench(c: &mut Criterion) {
-    let sequence = frames(&sequence());
+    let sequence = frames(&sequence(), Facing::Mirror);
     let frames: Vec<&[Mat; 2]> = sequence.iter().map(|f| &f.images).collect();
     let mut group = c.benchmark_group("detect_stereo_frame");
     let stock = StockPass::new().unwrap();
