@@ -459,7 +459,7 @@ fn rogue(prefix: &str) {
         *sample.user_header_mut() = header;
         sample.send().unwrap();
         frame_event.notify().unwrap();
-        // The tracker keeps 4 frames; spaced out, none is overwritten
+        // The tracker keeps 8 frames; spaced out, none is overwritten
         // before it is looked at.
         std::thread::sleep(Duration::from_millis(30));
     };
