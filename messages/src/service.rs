@@ -9,7 +9,8 @@ pub const SMALL_BUFFER: usize = 1024;
 /// kept. Eight frames (89 ms at 90 fps): a tracker kept off both cores by a
 /// burst of work above it (the simulated camera drawing the card near the
 /// head as the arm moves, at 90 fps) catches up afterwards instead of
-/// missing frames (with 4 it missed 2 to 6 a run; the e2e bench).
+/// missing frames (with 4 it missed 2 to 6 in 4 of 5 runs of the e2e
+/// bench's plan at 90 fps; with 8 none in 3 of 3).
 pub const FRAME_BUFFER: usize = 8;
 /// Publishers, subscribers, notifiers and listeners a service takes at
 /// most (and twice as many nodes). Every process opening a service must
