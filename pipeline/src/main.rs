@@ -3,9 +3,10 @@
 //!
 //! Per placement it writes `rig.toml` and `plan.csv` into `OUT/mirror<i>/`,
 //! starts the stages from their declarations (the `stages` crate): `recorder` (unless
-//! `--no-record`), `mirror_proc`, `tracker_proc`, `camera_proc` and the arm
-//! driver (`sim_arm`, or `--arm-driver`), waits until they are subscribed,
-//! then starts `kinematics_proc` on the plan ([`supervise`]). A stage that
+//! `--no-record`), `mirror_proc` and `tracker_proc`, then, each once every
+//! stage before it is subscribed, `camera_proc` and the arm driver
+//! (`sim_arm`, or `--arm-driver`), then `kinematics_proc` on the plan once
+//! all are ([`supervise`]). A stage that
 //! crashes is restarted as its policy says.
 //! When the plan is done `mirror_proc` writes `report.json`; the launcher
 //! stops the rest, evaluates the calibration against the simulator's truth

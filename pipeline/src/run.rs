@@ -35,15 +35,17 @@ const OTHER_SIDE_WITHIN: Duration = Duration::from_secs(600);
 struct Readiness {
     side: Option<Side>,
     mirror: usize,
-    /// Whether this side said it waits for the other one.
-    told: bool,
+    /// Whether a wait has passed: on a split run, the other side was up
+    /// for it (this side's bridge subscribes once it is on the link), and
+    /// later waits are for this side's stages only.
+    passed: bool,
 }
 
 impl Readiness {
     /// Returns once every started stage has subscribed to what its spec
-    /// says (the caller stops them if not). On a split run that may need the other side (this side's
-    /// bridge subscribes once it is on the link), which may be started
-    /// much later: the wait says so once and is long.
+    /// says (the caller stops them if not). A split run's first wait may
+    /// need the other side, which may be started much later: it says so
+    /// and is long.
     fn wait(
         &mut self,
         run: &Run,
@@ -52,29 +54,27 @@ impl Readiness {
         log: &Path,
     ) -> Result<()> {
         let mirror = self.mirror;
-        if supervisor.ready(bus)? {
-            return Ok(());
-        }
-        let within = match self.side {
-            Some(side) => {
-                if !std::mem::replace(&mut self.told, true) {
-                    eprintln!(
-                        "mirror {mirror}: {} side up; waiting for the {} side",
-                        side.name(),
-                        side.other().name()
-                    );
-                }
-                OTHER_SIDE_WITHIN
-            }
-            None => READY_WITHIN,
+        let other_side = self.side.filter(|_| !self.passed);
+        let within = if supervisor.ready(bus)? {
+            Duration::ZERO
+        } else if let Some(side) = other_side {
+            eprintln!(
+                "mirror {mirror}: {} side up; waiting for the {} side",
+                side.name(),
+                side.other().name()
+            );
+            OTHER_SIDE_WITHIN
+        } else {
+            READY_WITHIN
         };
-        if wait_ready(supervisor, bus, within, &|| run.stopping())? {
+        if within.is_zero() || wait_ready(supervisor, bus, within, &|| run.stopping())? {
+            self.passed = true;
             return Ok(());
         }
         if run.stopping() {
             bail!("interrupted");
         }
-        let other = self.side.map_or(String::new(), |s| {
+        let other = other_side.map_or(String::new(), |s| {
             format!(
                 "; is the {} side running and the link up?",
                 s.other().name()
@@ -358,8 +358,17 @@ impl Run {
         let mut readiness = Readiness {
             side,
             mirror,
-            told: false,
+            passed: false,
         };
+        // Sources come last: a consumer started after one could miss what
+        // it published first.
+        debug_assert!(
+            consumers
+                .iter()
+                .skip_while(|s| !s.is_source())
+                .all(StageArgs::is_source),
+            "a consumer after a source in {consumers:?}"
+        );
         let up = (|| -> Result<()> {
             for stage in consumers {
                 if stage.is_source() {
@@ -402,7 +411,8 @@ impl Run {
     /// the robot the bridge starts first (it reads what the robot's stages
     /// publish, and subscribes only once the workstation's bridge is up, so
     /// the arm waits for the workstation) and stops last; on the
-    /// workstation it starts once the stages there listen, as a source.
+    /// workstation it starts once the stages there listen, as what sends
+    /// them the robot's messages.
     fn split(
         &self,
         link: &Link,
@@ -549,7 +559,10 @@ impl Run {
         }
         let _services = bus.open_all()?;
         for stage in table {
-            supervisor.start(stage)?;
+            if let Err(e) = supervisor.start(stage) {
+                supervisor.stop();
+                return Err(e);
+            }
         }
         self.conclude(Concluding {
             supervisor,

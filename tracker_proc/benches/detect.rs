@@ -11,10 +11,11 @@
 //! that the machine's load changes both alike; each round gives a ratio and
 //! the spread over rounds says how far to trust it. Both are timed by the
 //! clock and by the CPU time they take: the stock pass runs its threshold
-//! scales on OpenCV's threads, ours runs the two images on two threads. The renderer is timed
-//! against the tracker the same way, on these frames and on its worst
-//! case, the moves between direct poses at 90 fps. Then what each pass finds of the
-//! renderer's truth, and how far its centres are from it.
+//! scales on OpenCV's threads, ours runs the two images on two threads.
+//! The renderer is timed against the tracker the same way, on these frames
+//! and on its worst case, the moves between direct poses at 90 fps. Then
+//! what each pass finds of the renderer's truth, and how far its centres
+//! are from it.
 //! Run: `cargo bench -p tracker_proc --bench detect`.
 
 use cpu_time::ProcessTime;
@@ -312,10 +313,10 @@ fn ratios(_: &mut Criterion) {
         &times,
         n,
     );
-    // The renderer's worst case: the moves between direct poses (the card
-    // near the head, turned to it) as the e2e bench's 90 fps run makes
-    // them (100 ms moves, 9 frames each; no still frames), against the
-    // tracker on the same frames.
+    // The renderer's worst case: the moves between direct poses of the
+    // simulator's plan (the card near the head, turned to it) at 90 fps,
+    // 100 ms moves of 9 frames as in the e2e bench, no still frames;
+    // against the tracker on the same frames.
     let direct = generate(&nico_scene(), 0, &nico_noise(), DIRECT_MOVES, 3).unwrap();
     let direct: Vec<Vec<f64>> = direct
         .direct
