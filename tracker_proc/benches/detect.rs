@@ -60,11 +60,9 @@ fn frames(sequence: &[(Vec<f64>, Vec<f64>)], faces: Facing) -> Vec<Frame> {
     sequence
         .iter()
         .enumerate()
-        .map(|(i, (q, speed))| {
+        .map(|(i, _)| {
             let (mut l, mut r) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);
-            let truth = renderer
-                .render_moving(q, Some(speed), faces, i as u64, &mut l, &mut r)
-                .unwrap();
+            let truth = render(&mut renderer, sequence, i, faces, [&mut l, &mut r]);
             let mat = |v: &[u8]| {
                 Mat::from_slice(v)
                     .unwrap()
@@ -80,6 +78,21 @@ fn frames(sequence: &[(Vec<f64>, Vec<f64>)], faces: Facing) -> Vec<Frame> {
             }
         })
         .collect()
+}
+
+/// Renders frame `i` of `sequence` (joint values and speeds) into the two
+/// images, the arm's card turned as `faces` says.
+fn render(
+    renderer: &mut Renderer,
+    sequence: &[(Vec<f64>, Vec<f64>)],
+    i: usize,
+    faces: Facing,
+    [l, r]: [&mut [u8]; 2],
+) -> RenderTruth {
+    let (q, speed) = &sequence[i];
+    renderer
+        .render_moving(q, Some(speed), faces, i as u64, l, r)
+        .unwrap()
 }
 
 fn header(seq: u64) -> FrameHeader {
@@ -284,15 +297,16 @@ fn ratios(_: &mut Criterion) {
     );
     let mut renderer = Renderer::new(SimWorld::nico(0).unwrap()).unwrap();
     let (mut l, mut r) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);
-    let mut render = |i: usize| {
-        let (q, speed) = &sequence[i];
-        black_box(
-            renderer
-                .render_moving(q, Some(speed), Facing::Mirror, i as u64, &mut l, &mut r)
-                .unwrap(),
-        );
+    let mut render_mirror_view = |i: usize| {
+        black_box(render(
+            &mut renderer,
+            &sequence,
+            i,
+            Facing::Mirror,
+            [&mut l, &mut r],
+        ));
     };
-    let times = interleaved(rounds, n, &mut render, |i| {
+    let times = interleaved(rounds, n, &mut render_mirror_view, |i| {
         black_box(track(&mut tracker, &mut seq, &frames[i]));
     });
     report(
@@ -301,7 +315,7 @@ fn ratios(_: &mut Criterion) {
         &times,
         n,
     );
-    let times = interleaved(rounds, n, &mut render, |i| {
+    let times = interleaved(rounds, n, &mut render_mirror_view, |i| {
         black_box((
             whole.detect(&frames[i].images[0]).unwrap(),
             whole.detect(&frames[i].images[1]).unwrap(),
@@ -332,12 +346,13 @@ fn ratios(_: &mut Criterion) {
         rounds,
         fast.len(),
         |i| {
-            let (q, speed) = &fast[i];
-            black_box(
-                renderer
-                    .render_moving(q, Some(speed), Facing::Head, i as u64, &mut l, &mut r)
-                    .unwrap(),
-            );
+            black_box(render(
+                &mut renderer,
+                &fast,
+                i,
+                Facing::Head,
+                [&mut l, &mut r],
+            ));
         },
         |i| {
             black_box(track(&mut fast_tracker, &mut fast_seq, &fast_frames[i]));

@@ -60,15 +60,8 @@ pub fn misfit_bent(
         &Vector::<Point2f>::from_iter(*quad),
         core::DECOMP_LU,
     )?;
-    let mut m = Matrix3::zeros();
-    for r in 0..3 {
-        for c in 0..3 {
-            m[(r, c)] = *h.at_2d::<f64>(r as i32, c as i32)?;
-        }
-    }
-    let h = m;
-    let outward =
-        crate::refine::outward_normals(&quad.map(|p| Vector2::new(f64::from(p.x), f64::from(p.y))));
+    let h = Matrix3::from_row_slice(h.data_typed::<f64>()?);
+    let outward = crate::refine::outward_normals(&crate::refine::quad_f64(quad));
     let n = SIDE as i32;
     let mut map_x = Mat::new_rows_cols_with_default(n, n, core::CV_32FC1, core::Scalar::all(0.0))?;
     let mut map_y = map_x.clone();

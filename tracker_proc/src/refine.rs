@@ -245,7 +245,7 @@ impl Band {
 /// gives no line or the corners would move implausibly far (more than a
 /// fifth of the shortest side).
 pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Option<[Point2f; 4]> {
-    let c: [Vector2<f64>; 4] = corners.map(|p| Vector2::new(f64::from(p.x), f64::from(p.y)));
+    let c = quad_f64(corners);
     let shortest = (0..4)
         .map(|k| (c[(k + 1) % 4] - c[k]).norm())
         .fold(f64::INFINITY, f64::min);
@@ -284,7 +284,7 @@ pub fn refine_corners(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Opt
 /// curved face, bows; a flat one gives a fraction of a pixel. `None` when
 /// an edge gives too few points.
 pub fn edge_bows(image: &impl MatTraitConst, corners: &[Point2f; 4]) -> Option<[f64; 4]> {
-    let c: [Vector2<f64>; 4] = corners.map(|p| Vector2::new(f64::from(p.x), f64::from(p.y)));
+    let c = quad_f64(corners);
     let shortest = (0..4)
         .map(|k| (c[(k + 1) % 4] - c[k]).norm())
         .fold(f64::INFINITY, f64::min);
@@ -359,6 +359,11 @@ fn edge_lines(
         };
     }
     Some(lines)
+}
+
+/// A quadrilateral's corners in double precision.
+pub(crate) fn quad_f64(corners: &[Point2f; 4]) -> [Vector2<f64>; 4] {
+    corners.map(|p| Vector2::new(f64::from(p.x), f64::from(p.y)))
 }
 
 /// The unit normal of each edge of the quadrilateral `c` (edge k from
