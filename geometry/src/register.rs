@@ -68,6 +68,9 @@ pub struct Turn {
     /// (tilt), y (pan), z (about the optical axis, which points clustered
     /// in the image determine least).
     pub sigma_deg: [f64; 3],
+    /// The turn's covariance about the camera's axes, rad^2 (`sigma_deg`
+    /// its diagonal's roots).
+    pub covariance: Matrix3<f64>,
     /// RMS reprojection error after the turn, px.
     pub rms_px: f64,
 }
@@ -123,10 +126,12 @@ pub fn camera_turn(
     // Not more confident than the detections' stated noise allows.
     let scale = (pixel_sigma * pixel_sigma / covariance.residual_variance).max(1.0);
     let w = Vector3::new(x[0], x[1], x[2]);
+    let covariance = covariance.matrix.fixed_view::<3, 3>(0, 0) * scale;
     Ok(Turn {
         camera: camera.turned(&w),
         w,
-        sigma_deg: [0, 1, 2].map(|i| (covariance.matrix[(i, i)] * scale).sqrt().to_degrees()),
+        sigma_deg: [0, 1, 2].map(|i| covariance[(i, i)].sqrt().to_degrees()),
+        covariance,
         rms_px: (r.norm_squared() / points.len() as f64).sqrt(),
     })
 }

@@ -13,7 +13,7 @@
 use formats::calibration::{CalibrationFile, HeadCameraEntry};
 use geometry::register::camera_turn;
 use geometry::{Rig, Sample, View};
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::{Calibration, model_point};
@@ -72,6 +72,18 @@ pub fn cameras_moved(rig: &Rig, moved: &Moved) -> Vec<usize> {
     }
 }
 
+/// A head camera found again after it moved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FoundCamera {
+    /// Its entry for the calibration file.
+    pub entry: HeadCameraEntry,
+    /// Its index in the rig.
+    pub index: usize,
+    /// The covariance of its turn about its own axes, rad^2: what it adds
+    /// to the uncertainty of every calibration that takes it as found.
+    pub turn_covariance: Matrix3<f64>,
+}
+
 /// Finds camera `k` of `rig` again from the `samples` since it moved, the
 /// marker placed by the arm as `cal` (made with `rig`) models it: a direct
 /// view sees the marker, a mirror view its reflection in `cal`'s plane
@@ -87,7 +99,7 @@ pub fn cameras_moved(rig: &Rig, moved: &Moved) -> Vec<usize> {
 /// that across its ray, and the depth left to the arm moves the point
 /// across the moved camera's view only by the stereo baseline's share.
 ///
-/// Returns the camera's turn and its entry for the calibration file.
+/// Returns the camera as found, with its turn's covariance.
 pub fn find_camera(
     rig: &Rig,
     cal: &Calibration,
@@ -96,7 +108,7 @@ pub fn find_camera(
     other_still: bool,
     pixel_sigma: f64,
     moved_at_pose: u64,
-) -> Result<HeadCameraEntry, String> {
+) -> Result<FoundCamera, String> {
     let corrected = cal.corrected_rig(rig);
     let offsets = cal.joint_offsets.as_deref();
     let other = &rig.cameras[1 - k];
@@ -131,16 +143,20 @@ pub fn find_camera(
     let found = camera_turn(&rig.cameras[k], &points, &pixels, pixel_sigma)
         .map_err(|e| format!("cannot find the {} camera again: {e}", rig.names[k]))?;
     let r = found.camera.camera_from_world;
-    Ok(HeadCameraEntry {
-        name: rig.names[k].clone(),
-        camera_from_world: [
-            r.m11, r.m12, r.m13, r.m21, r.m22, r.m23, r.m31, r.m32, r.m33,
-        ],
-        center: found.camera.center.into(),
-        turn_deg: found.w.norm().to_degrees(),
-        sigma_deg: found.sigma_deg,
-        views: samples.iter().filter(|s| s.view == View::Direct).count(),
-        moved_at_pose,
+    Ok(FoundCamera {
+        entry: HeadCameraEntry {
+            name: rig.names[k].clone(),
+            camera_from_world: [
+                r.m11, r.m12, r.m13, r.m21, r.m22, r.m23, r.m31, r.m32, r.m33,
+            ],
+            center: found.camera.center.into(),
+            turn_deg: found.w.norm().to_degrees(),
+            sigma_deg: found.sigma_deg,
+            views: samples.iter().filter(|s| s.view == View::Direct).count(),
+            moved_at_pose,
+        },
+        index: k,
+        turn_covariance: found.covariance,
     })
 }
 

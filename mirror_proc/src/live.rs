@@ -269,6 +269,9 @@ pub struct Live {
     drifted: Option<Drifted>,
     /// Head cameras found again after they moved.
     head_cameras: Vec<formats::calibration::HeadCameraEntry>,
+    /// The covariance of each head camera's turn as last found (rad^2),
+    /// added to every later calibration's uncertainty.
+    turn_covariances: [Option<Matrix3<f64>>; 2],
     /// Why calibrating stopped after a change, if it did.
     stopped: Option<String>,
 }
@@ -320,6 +323,7 @@ impl Live {
             past_epochs: Vec::new(),
             drifted: None,
             head_cameras: Vec::new(),
+            turn_covariances: [None; 2],
             stopped: None,
         }
     }
@@ -747,7 +751,7 @@ impl Live {
                 .collect();
             let sigma = CalibrateOptions::default().pixel_sigma_for(&self.rig);
             let other_still = moved.len() == 1;
-            for k in moved {
+            for &k in &moved {
                 let found = epochs::find_camera(
                     &self.rig,
                     &old,
@@ -759,17 +763,19 @@ impl Live {
                 );
                 match found {
                     Ok(found) => {
+                        let entry = found.entry;
                         tracing::info!(
-                            camera = found.name,
-                            turn_deg = found.turn_deg,
-                            sigma_deg = ?found.sigma_deg,
-                            views = found.views,
+                            camera = entry.name,
+                            turn_deg = entry.turn_deg,
+                            sigma_deg = ?entry.sigma_deg,
+                            views = entry.views,
                             "camera found again"
                         );
                         self.rig.cameras[k].camera_from_world =
-                            Matrix3::from_row_slice(&found.camera_from_world);
-                        self.head_cameras.retain(|c| c.name != found.name);
-                        self.head_cameras.push(found);
+                            Matrix3::from_row_slice(&entry.camera_from_world);
+                        self.turn_covariances[found.index] = Some(found.turn_covariance);
+                        self.head_cameras.retain(|c| c.name != entry.name);
+                        self.head_cameras.push(entry);
                     }
                     Err(why) => {
                         self.stop(why, stamp_ns, out);
@@ -782,10 +788,12 @@ impl Live {
             }
             fresh = true;
             // The mirror did not move: its plane gives the moved camera's
-            // mirror camera at once.
+            // mirror camera at once (the old calibration's uncertainty holds
+            // the turns of cameras found before).
             if new_train < self.config.min_train
                 && let Some(cal) = epochs::reflected_anew(&old, &self.rig)
             {
+                let cal = self.with_found_turns(cal, &moved);
                 self.begin_epoch(cal, stamp_ns, out);
                 return;
             }
@@ -802,7 +810,10 @@ impl Live {
             ..CalibrateOptions::default()
         };
         match calibrate_with(&self.rig, &samples, self.config.method, options) {
-            Ok(cal) => self.begin_epoch(cal, stamp_ns, out),
+            Ok(cal) => {
+                let cal = self.with_found_turns(cal, &[0, 1]);
+                self.begin_epoch(cal, stamp_ns, out);
+            }
             Err(e) => {
                 self.counters.calibration_failures += 1;
                 self.last_error = Some(e.to_string());
@@ -912,6 +923,7 @@ impl Live {
                     _ => self.poor_fit_logged = false,
                 }
                 self.last_error = None;
+                let cal = self.with_found_turns(cal, &[0, 1]);
                 self.publish_calibration(cal, stamp_ns, out);
             }
             Err(e) => {
@@ -929,6 +941,22 @@ impl Live {
                 self.last_error = Some(why);
             }
         }
+    }
+
+    /// `cal`, made with the rig as it is now, with the uncertainty of the
+    /// turns of `cameras` where they were found again: a calibration takes
+    /// a found camera as exact, but it is known only to its turn's
+    /// accuracy.
+    fn with_found_turns(&self, mut cal: Calibration, cameras: &[usize]) -> Calibration {
+        if let Some(plane) = cal.plane {
+            for &k in cameras {
+                if let Some(turn) = &self.turn_covariances[k] {
+                    cal.uncertainty
+                        .add_head_camera_turn(&self.rig.cameras[k], k, &plane, turn);
+                }
+            }
+        }
+        cal
     }
 
     /// Publishes `cal` as the next revision and watches the samples that

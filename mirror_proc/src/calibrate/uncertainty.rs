@@ -9,7 +9,7 @@
 //! `w` (rad) applied on the camera side, `R' = exp(w) R`, and a shift of the
 //! centre (mm), left camera first.
 
-use geometry::{Camera, lsq::Covariance};
+use geometry::{Camera, Plane, lsq::Covariance};
 use nalgebra::{DMatrix, Matrix3, Rotation3, SMatrix, SVector, Vector3};
 
 /// Parameters of the two mirror cameras' chart.
@@ -115,20 +115,15 @@ impl Uncertainty {
     /// The summary of a camera-chart covariance, with the plane and joint
     /// parts left empty for the caller to fill.
     pub(crate) fn from_cameras(cameras: CameraCovariance, residual_variance: f64) -> Self {
-        let rms = |o: usize| {
-            (0..3)
-                .map(|i| cameras[(o + i, o + i)].max(0.0))
-                .sum::<f64>()
-                .sqrt()
-        };
+        let (centers, angles) = camera_sigmas(&cameras);
         Self {
             stated: true,
             residual_px: residual_variance.max(0.0).sqrt(),
             plane_angle_deg: None,
             plane_distance_mm: None,
             joint_offsets_deg: None,
-            mirror_camera_centers_mm: [rms(3), rms(9)],
-            mirror_camera_angles_deg: [rms(0).to_degrees(), rms(6).to_degrees()],
+            mirror_camera_centers_mm: centers,
+            mirror_camera_angles_deg: angles,
             undetermined: Vec::new(),
             cameras,
             cameras_stated: true,
@@ -158,6 +153,39 @@ impl Uncertainty {
             base_translation_mm: None,
             tool_mm: None,
         }
+    }
+
+    /// Adds the uncertainty of head camera `k`'s turn, found again after it
+    /// was knocked (`turn`: its covariance about the camera's own axes,
+    /// rad^2), to its mirror camera in `plane`: a calibration made with the
+    /// camera as found takes it as exact. `head` is the camera as found.
+    pub fn add_head_camera_turn(
+        &mut self,
+        head: &Camera,
+        k: usize,
+        plane: &Plane,
+        turn: &Matrix3<f64>,
+    ) {
+        if !self.cameras_stated {
+            return;
+        }
+        // d (mirror camera k in the chart) / d (the head camera's turn).
+        let base = plane.mirror_camera(head);
+        let mirror_chart = |w: Vector3<f64>| {
+            let moved = plane.mirror_camera(&head.turned(&w));
+            chart(&[base, base], &[moved, base])
+                .fixed_rows::<6>(0)
+                .into_owned()
+        };
+        let mut g = SMatrix::<f64, 6, 3>::zeros();
+        for j in 0..3 {
+            let step = Vector3::ith(j, 1e-7);
+            g.set_column(j, &((mirror_chart(step) - mirror_chart(-step)) / 2e-7));
+        }
+        let mut block = self.cameras.fixed_view_mut::<6, 6>(6 * k, 6 * k);
+        block += g * turn * g.transpose();
+        (self.mirror_camera_centers_mm, self.mirror_camera_angles_deg) =
+            camera_sigmas(&self.cameras);
     }
 
     /// The file form.
@@ -227,6 +255,18 @@ impl Uncertainty {
     }
 }
 
+/// Each mirror camera's RMS centre distance (mm) and rotation angle (deg)
+/// from a chart covariance.
+fn camera_sigmas(cameras: &CameraCovariance) -> ([f64; 2], [f64; 2]) {
+    let rms = |o: usize| {
+        (0..3)
+            .map(|i| cameras[(o + i, o + i)].max(0.0))
+            .sum::<f64>()
+            .sqrt()
+    };
+    ([rms(3), rms(9)], [rms(0).to_degrees(), rms(6).to_degrees()])
+}
+
 /// The 1-sigma position error (mm) a covariance predicts: `sqrt(trace)`,
 /// the RMS distance between the true and the located point.
 pub fn rms_error_mm(covariance: &Matrix3<f64>) -> f64 {
@@ -271,5 +311,52 @@ mod tests {
         let delta = CameraDelta::from_iterator((0..12).map(|i| 0.001 * (i as f64 - 5.5)));
         let back = chart(&cams, &perturb(&cams, &delta));
         assert!((back - delta).norm() < 1e-12, "{back} vs {delta}");
+    }
+
+    /// A head camera found again to a turn's covariance: the spread of a
+    /// point located through its mirror camera, when the camera is turned
+    /// by draws of that covariance, is what the located covariance states.
+    #[test]
+    fn a_found_cameras_turn_spreads_located_points_as_stated() {
+        use geometry::triangulate::triangulate;
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+
+        let scene = nico_scene();
+        let (head, plane) = (scene.rig.cameras, scene.mirrors[0].plane);
+        let mirrored = head.map(|c| plane.mirror_camera(&c));
+        // A point behind the head, seen in the glass (the mirror cameras
+        // see real points in front of the mirror).
+        let point = Vector3::new(30.0, 50.0, -100.0);
+        let pixels = mirrored.map(|c| c.project(&point).unwrap());
+        // Tilt, pan and roll of 0.02, 0.03 and 0.05 deg, pan and roll related.
+        let s = Vector3::new(0.02, 0.03, 0.05).map(f64::to_radians);
+        let mut turn = Matrix3::from_diagonal(&s.component_mul(&s));
+        turn[(1, 2)] = 0.5 * s.y * s.z;
+        turn[(2, 1)] = turn[(1, 2)];
+        let mut u = Uncertainty::from_cameras(CameraCovariance::zeros(), 0.0);
+        u.add_head_camera_turn(&head[0], 0, &plane, &turn);
+        let stated = u.located_covariance(&mirrored, &point).unwrap();
+
+        let root = turn.cholesky().unwrap().l();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let draws = 4000;
+        let mut spread = Matrix3::zeros();
+        for _ in 0..draws {
+            let z = Vector3::from_fn(|_, _| StandardNormal.sample(&mut rng));
+            let turned = plane.mirror_camera(&head[0].turned(&(root * z)));
+            let p = triangulate([&turned, &mirrored[1]], pixels).unwrap() - point;
+            spread += p * p.transpose() / f64::from(draws);
+        }
+        let (a, b) = (rms_error_mm(&stated), rms_error_mm(&spread));
+        assert!(a > 5.0, "a 0.05 deg turn moves the point by {a} mm");
+        assert!((a / b - 1.0).abs() < 0.05, "stated {a} mm, drawn {b} mm");
+        assert!(
+            (stated - spread).norm() < 0.1 * spread.norm(),
+            "stated {stated}, drawn {spread}"
+        );
+        // Only the turned camera's mirror camera is less certain.
+        assert!(u.mirror_camera_angles_deg[0] > 0.05 && u.mirror_camera_angles_deg[1] == 0.0);
+        assert_eq!(u.mirror_camera_centers_mm, [0.0, 0.0]);
     }
 }
