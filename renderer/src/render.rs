@@ -47,8 +47,13 @@ const LIMB_ALBEDO: f64 = 0.55;
 const CARD_BACK_ALBEDO: f64 = 0.25;
 /// Typical distance of the room seen around the arm, for its defocus, mm.
 const ROOM_DEPTH_MM: f64 = 2000.0;
-/// Most poses a moving arm is drawn at over one exposure.
-const MAX_MOTION_STEPS: usize = 6;
+/// The poses a moving arm's card is drawn at over one exposure
+/// ([`Renderer::motion_steps`]).
+const MOTION_SAMPLING: MotionSampling = MotionSampling {
+    step_sigmas: 1.25,
+    step_px: 1.5,
+    max_steps: 6,
+};
 /// Noisy copies of each camera's still image: a frame's background is one
 /// of them (they take turns), and only what is drawn over it each frame
 /// gets noise of its own.
@@ -154,6 +159,20 @@ pub struct Renderer {
     last_drawn: Option<LastDrawn>,
     /// Frames drawn anew, not reused.
     frames_drawn: u64,
+    /// Poses of a moving arm: blur sigmas apart, and at most (finer in
+    /// tests, as the reference).
+    /// [`MOTION_SAMPLING`] (finer in tests, as the reference).
+    motion: MotionSampling,
+}
+
+/// How far apart the poses a moving arm's card is drawn at over an
+/// exposure are: `step_sigmas` sigmas of the blur its image gets (lens and
+/// defocus), at least `step_px` pixels, at most `max_steps` poses.
+#[derive(Debug, Clone, Copy)]
+struct MotionSampling {
+    step_sigmas: f64,
+    step_px: f64,
+    max_steps: usize,
 }
 
 /// The two views of a frame drawn over their still images, before the
@@ -234,6 +253,7 @@ impl Renderer {
             noisy_stills: [Vec::new(), Vec::new()],
             last_drawn: None,
             frames_drawn: 0,
+            motion: MOTION_SAMPLING,
         };
         // The fixed cards do not move: drawn into the still image once.
         let fixed = [renderer.items(None, Facing::Mirror)?];
@@ -241,7 +261,7 @@ impl Renderer {
             let mut image = std::mem::take(&mut renderer.views[k].image);
             renderer.shrink_cards(k, &fixed)?;
             let height = renderer.world.rig.cameras[k].intrinsics.height as usize;
-            renderer.draw_over(k, &fixed, &mut image, &mut Drawn::new(height))?;
+            renderer.draw_over(k, &fixed[0], &fixed, &mut image, &mut Drawn::new(height))?;
             renderer.views[k].image = image;
         }
         if !renderer.noise.is_silent() {
@@ -329,11 +349,21 @@ impl Renderer {
             .take()
             .filter(|l| l.open == open && l.close == close && l.faces == arm_faces);
         let mut items_per_pose = Vec::new();
+        // What is drawn once, unblurred (links, backs): at the exposure's middle.
+        let mut middle = Vec::new();
         if reused.is_none() {
+            middle = self.items(Some(q), arm_faces)?;
             self.frames_drawn += 1;
             let steps = self.motion_steps(&open, &close, arm_faces)?;
+            // The poses' spread widened to the exposure's: n midpoints of
+            // equal parts of it spread 1 - 1/n^2 times its variance.
+            let widen = if steps > 1 {
+                1.0 / (1.0 - 1.0 / (steps * steps) as f64).sqrt()
+            } else {
+                1.0
+            };
             for s in 0..steps {
-                let f = (s as f64 + 0.5) / steps as f64;
+                let f = 0.5 + ((s as f64 + 0.5) / steps as f64 - 0.5) * widen;
                 let pose: Vec<f64> = open
                     .iter()
                     .zip(&close)
@@ -379,7 +409,7 @@ impl Renderer {
                     let height = this.world.rig.cameras[k].intrinsics.height as usize;
                     let mut drawn = Drawn::new(height);
                     out.copy_from_slice(&this.views[k].image);
-                    this.draw_over(k, &items_per_pose, out, &mut drawn)?;
+                    this.draw_over(k, &middle, &items_per_pose, out, &mut drawn)?;
                     DrawnView {
                         image: out.to_vec(),
                         drawn,
@@ -428,8 +458,13 @@ impl Renderer {
             .map(|f| (f.id, f.center, Facing::Mirror))
     }
 
-    /// How many poses to draw the arm at: about one per 1.5 px its card
-    /// moves in either image over the exposure.
+    /// How many poses to draw the arm at over the exposure: one per
+    /// [`MOTION_SAMPLING`] step its card moves in either image. Every card
+    /// is drawn through the blur at its depth (at least the lens's 1.5 px),
+    /// which smooths poses 1.25 sigmas apart, spread as the exposure is,
+    /// into its streak: on the fast direct moves (the worst case) within
+    /// 2 DN of the streak drawn at 0.3 px steps, as close as poses 1.5 px
+    /// apart were, with 70% of the poses to draw.
     fn motion_steps(&self, open: &[f64], close: &[f64], faces: Facing) -> Result<usize> {
         if open == close {
             return Ok(1);
@@ -445,13 +480,16 @@ impl Renderer {
             faces,
             1.0,
         );
-        let mut moved: f64 = 0.0;
+        let mut steps: f64 = 1.0;
         for cam in &self.world.rig.cameras {
             if let (Ok(pa), Ok(pb)) = (cam.project(&a.center), cam.project(&b.center)) {
-                moved = moved.max((pa - pb).norm());
+                let depth = cam.depth(&a.center).min(cam.depth(&b.center));
+                let spacing =
+                    (self.motion.step_sigmas * self.look.blur_at(depth)).max(self.motion.step_px);
+                steps = steps.max((pa - pb).norm() / spacing);
             }
         }
-        Ok(((moved / 1.5).ceil() as usize).clamp(1, MAX_MOTION_STEPS))
+        Ok((steps.ceil() as usize).clamp(1, self.motion.max_steps))
     }
 
     /// What is drawn for the arm at `q` (its card, the card's back, its
@@ -594,16 +632,18 @@ impl Renderer {
     /// Draws items over what `out` shows (a frame starts as the still
     /// scene): what is seen in the glass, then what is seen directly; each
     /// of those far to near, links and card backs before cards (a card is
-    /// held at the wrist). Where it drew goes to `drawn`.
+    /// held at the wrist). Links and backs are drawn once, as `middle` (the
+    /// arm at the exposure's middle), cards at each of `items_per_pose`.
+    /// Where it drew goes to `drawn`.
     fn draw_over(
         &self,
         k: usize,
+        middle: &[Item],
         items_per_pose: &[Vec<Item>],
         out: &mut [u8],
         drawn: &mut Drawn,
     ) -> Result<()> {
         let cam = self.world.rig.cameras[k];
-        let middle = &items_per_pose[items_per_pose.len() / 2];
         for mirrored in [true, false] {
             // Links and backs: large and plain, drawn once at the exposure's middle pose.
             let mut plain: Vec<&Item> = middle
@@ -1327,6 +1367,84 @@ mod tests {
             "{} {}",
             changed(true),
             changed(false)
+        );
+    }
+
+    /// The arm's card in fast direct moves (the card near the head, where
+    /// it moves furthest in the image) drawn as the renderer draws it is
+    /// its streak: within 2 DN of the card drawn at poses 0.3 px apart,
+    /// with no more pixels off by more than 1 DN than poses 1.5 px apart
+    /// (the renderer's rule before) give, and fewer poses.
+    #[test]
+    fn a_moving_card_is_drawn_as_its_streak() {
+        let data = generate(
+            &nico_scene(),
+            0,
+            &nico_noise(),
+            Counts {
+                train: 0,
+                test: 0,
+                direct: 4,
+            },
+            3,
+        )
+        .unwrap();
+        let poses: Vec<Vec<f64>> = data
+            .direct
+            .iter()
+            .filter_map(|s| s.joints.clone())
+            .collect();
+        let sequence = geometry::sim::sweep(&poses, 9, 0, 90.0);
+        let silent = Look {
+            read_noise_dn: 0.0,
+            electrons_per_dn: 0.0,
+            jpeg_quality: None,
+            ..Look::realistic()
+        };
+        let world = SimWorld::nico(0).unwrap();
+        let with = |motion: MotionSampling| {
+            let mut r = Renderer::with_look(world.clone(), silent).unwrap();
+            r.motion = motion;
+            r
+        };
+        let mut streak = with(MotionSampling {
+            step_sigmas: 0.0,
+            step_px: 0.3,
+            max_steps: 64,
+        });
+        let mut before = with(MotionSampling {
+            step_sigmas: 0.0,
+            step_px: 1.5,
+            ..MOTION_SAMPLING
+        });
+        let mut ours = with(MOTION_SAMPLING);
+        let half = silent.exposure_ms / 2000.0;
+        // Per renderer: the most DN off, pixels off by more than 1, poses.
+        let mut off = [(0u8, 0usize, 0usize); 2];
+        for (seq, (q, speed)) in sequence.iter().enumerate() {
+            let render = |r: &mut Renderer| {
+                let [mut l, mut right] = [(); 2].map(|_| vec![0u8; 640 * 480]);
+                r.render_moving(q, Some(speed), Facing::Head, seq as u64, &mut l, &mut right)
+                    .unwrap();
+                l.extend(right);
+                l
+            };
+            let truth = render(&mut streak);
+            let open: Vec<f64> = q.iter().zip(speed).map(|(q, v)| q - v * half).collect();
+            let close: Vec<f64> = q.iter().zip(speed).map(|(q, v)| q + v * half).collect();
+            for (r, off) in [&mut before, &mut ours].into_iter().zip(&mut off) {
+                let image = render(r);
+                for (a, b) in image.iter().zip(&truth) {
+                    off.0 = off.0.max(a.abs_diff(*b));
+                    off.1 += usize::from(a.abs_diff(*b) > 1);
+                }
+                off.2 += r.motion_steps(&open, &close, Facing::Head).unwrap();
+            }
+        }
+        let [before, ours] = off;
+        assert!(
+            ours.0 <= 2 && ours.1 <= before.1 && ours.2 * 4 <= before.2 * 3,
+            "off the streak: ours {ours:?}, poses 1.5 px apart {before:?} (DN, pixels > 1 DN, poses)"
         );
     }
 

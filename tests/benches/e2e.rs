@@ -18,7 +18,8 @@
 //! optimised; writes `target/bench/e2e.json`); under `cargo test` one short
 //! run at 30 fps only, to check it works. `MIRROR_BENCH_BINS=DIR` runs the
 //! binaries in DIR instead (another build, e.g. an earlier commit's, to
-//! compare in the same session).
+//! compare in the same session); `MIRROR_BENCH_RATES=90,120` runs only
+//! those rates.
 
 use std::path::Path;
 use std::process::Command;
@@ -68,13 +69,39 @@ fn ms(v: &Value, key: &str) -> f64 {
     v[key].as_f64().unwrap_or(f64::NAN)
 }
 
+/// `MIRROR_BENCH_RATES`, e.g. `90,120`: the rates to run instead of all.
+fn rates_from_env() -> Result<Option<Vec<f64>>, String> {
+    let Some(list) = std::env::var_os("MIRROR_BENCH_RATES") else {
+        return Ok(None);
+    };
+    let list = list.to_string_lossy();
+    list.split(',')
+        .map(|r| match r.trim().parse::<f64>() {
+            Ok(fps) if fps > 0.0 && fps.is_finite() => Ok(fps),
+            _ => Err(format!(
+                "MIRROR_BENCH_RATES={list}: {r:?} is not a frame rate (fps > 0)"
+            )),
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
+}
+
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
+    let rates = match rates_from_env() {
+        Ok(rates) => rates,
+        Err(e) => {
+            eprintln!("e2e bench: {e}");
+            std::process::exit(2);
+        }
+    };
     let (bins, rates, poses): (_, &[f64], _) = if full {
         (
             std::env::var_os("MIRROR_BENCH_BINS")
                 .map_or_else(tests::release_stage_binaries, Into::into),
-            &[30.0, 60.0, 90.0, 120.0, 150.0],
+            rates
+                .as_deref()
+                .unwrap_or(&[30.0, 60.0, 90.0, 120.0, 150.0]),
             POSES_FULL,
         )
     } else {
