@@ -44,6 +44,8 @@ pub struct BorderScanner {
     /// The image as 0 and 1, framed by a row and column of zeros, marked as
     /// borders are traced.
     work: Vec<u8>,
+    /// The width and height `work` is framed for.
+    framed: (usize, usize),
     /// The border being traced, in image pixels.
     points: Vec<Point>,
     /// The borders handed on, in the order they start: where each begins
@@ -93,10 +95,12 @@ impl BorderScanner {
     /// buffer, where its first pixel lies, and the bytes per row. Fill every
     /// pixel with 0 or 1, then [`BorderScanner::scan_framed`]; the frame
     /// around them is zero (tracing marks foreground pixels only, so a
-    /// buffer of the same size is reused as it is).
+    /// buffer framed for the same width and height is reused as it is; one
+    /// of the same size but another shape would have pixels in its frame).
     pub fn frame(&mut self, width: usize, height: usize) -> (&mut [u8], usize, usize) {
         let step = width + 2;
-        if self.work.len() != step * (height + 2) {
+        if self.framed != (width, height) || self.work.len() != step * (height + 2) {
+            self.framed = (width, height);
             self.work.clear();
             self.work.resize(step * (height + 2), 0);
         }
@@ -118,9 +122,9 @@ impl BorderScanner {
     ) {
         let step = width + 2;
         assert_eq!(
-            self.work.len(),
-            step * (height + 2),
-            "the working image's size"
+            self.framed,
+            (width, height),
+            "the working image's width and height"
         );
         // Borders in the order they start; `findContours` lists them last first.
         self.kept.clear();

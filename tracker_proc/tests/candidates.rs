@@ -97,6 +97,52 @@ fn the_border_scanner_finds_what_find_contours_finds() {
     println!("{borders} borders, {points} points, all as findContours'");
 }
 
+/// Region tracking scans windows of many shapes with one scanner: an image
+/// after one of another shape but the same framed size (6 x 7 after
+/// 4 x 10: 8 x 9 = 6 x 12 bytes) is scanned as on its own. Reusing the
+/// buffer by its size alone left the first image's pixels in the second's
+/// frame, and the trace walked off the buffer (a tracker panic in a demo).
+#[test]
+fn images_of_another_shape_are_scanned_afresh() {
+    let binary = |w: usize, h: usize, on: &dyn Fn(usize, usize) -> bool| {
+        let bytes: Vec<u8> = (0..w * h)
+            .map(|i| if on(i % w, i / w) { 255 } else { 0 })
+            .collect();
+        Mat::from_slice(&bytes)
+            .unwrap()
+            .reshape(1, h as i32)
+            .unwrap()
+            .try_clone()
+            .unwrap()
+    };
+    let first = binary(4, 10, &|_, _| true);
+    let second = binary(6, 7, &|x, y| (x + y) % 3 != 0);
+    let scan = |scanner: &mut BorderScanner, m: &Mat| {
+        let mut out: Vec<Vec<Point>> = Vec::new();
+        scanner.scan(
+            m.data_bytes().unwrap(),
+            m.cols() as usize,
+            m.rows() as usize,
+            m.step1(0).unwrap(),
+            0..=usize::MAX,
+            |p| out.push(p.to_vec()),
+        );
+        out
+    };
+    let mut theirs = Vector::<Vector<Point>>::new();
+    imgproc::find_contours_def(
+        &second,
+        &mut theirs,
+        imgproc::RETR_LIST,
+        imgproc::CHAIN_APPROX_NONE,
+    )
+    .unwrap();
+    let theirs: Vec<Vec<Point>> = theirs.iter().map(|c| c.to_vec()).collect();
+    let mut scanner = BorderScanner::new();
+    scan(&mut scanner, &first);
+    assert_eq!(scan(&mut scanner, &second), theirs);
+}
+
 #[test]
 fn the_threshold_is_adaptive_thresholds() {
     let mut ours = MeanThreshold::new();
