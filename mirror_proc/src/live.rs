@@ -241,6 +241,12 @@ pub struct Live {
     last_joint_stamp: i64,
     last_detection_stamp: i64,
     window: Option<Window>,
+    /// Hand a new sample out before what it sets going (see
+    /// [`Live::publish_samples_first`]).
+    samples_first: bool,
+    /// A sample handed out, with the detections it came from, whose
+    /// scoring, calibration and located objects are still to come.
+    held: Option<Box<(MirrorSample, StereoDetections)>>,
     train: Vec<MirrorSample>,
     tests: Vec<MirrorSample>,
     calibration: Option<Calibration>,
@@ -298,6 +304,8 @@ impl Live {
             last_joint_stamp: i64::MIN,
             last_detection_stamp: i64::MIN,
             window: None,
+            samples_first: false,
+            held: None,
             train: Vec::new(),
             tests: Vec::new(),
             calibration: None,
@@ -437,6 +445,28 @@ impl Live {
         None
     }
 
+    /// Hands each new sample out alone, before what it sets going (its
+    /// scoring against the calibration, a calibration, the objects located
+    /// in its frame), which [`Live::after_sample`] then gives: the live
+    /// stage publishes a sample without waiting for a calibration. The
+    /// outputs and their order are the same either way.
+    pub fn publish_samples_first(&mut self) {
+        self.samples_first = true;
+    }
+
+    /// Whether a sample was handed out whose consequences are still to
+    /// come ([`Live::after_sample`]).
+    pub fn holds_sample(&self) -> bool {
+        self.held.is_some()
+    }
+
+    /// What the last sample handed out sets going, and what became ready
+    /// after it; empty when nothing was held. Taking the next joint state
+    /// or detection does this first too.
+    pub fn after_sample(&mut self) -> Vec<Output> {
+        self.drain()
+    }
+
     /// Whether the pose plan has ended and everything before its end is processed.
     pub fn finished(&self) -> bool {
         self.finished
@@ -499,8 +529,13 @@ impl Live {
     /// Processes queued events in stamp order as far as both streams allow.
     fn drain(&mut self) -> Vec<Output> {
         let mut out = Vec::new();
+        if let Some(held) = self.held.take() {
+            let (sample, d) = *held;
+            self.take_sample(sample, &mut out);
+            self.locate_objects(&d, &mut out);
+        }
         loop {
-            if self.finished {
+            if self.finished || self.held.is_some() {
                 return out;
             }
             enum Next {
@@ -610,7 +645,12 @@ impl Live {
                 let state = w.state;
                 self.poses_sampled.insert(state.pose);
                 let pixels = [self.marker_pixel(0, l), self.marker_pixel(1, r)];
-                self.add_sample(state, d.stamp_ns, pixels, out);
+                let sample = self.add_sample(state, d.stamp_ns, pixels, out);
+                if self.samples_first {
+                    self.held = Some(Box::new((sample, *d)));
+                    return;
+                }
+                self.take_sample(sample, out);
             }
         }
         self.locate_objects(d, out);
@@ -629,13 +669,14 @@ impl Live {
             .map_or(m.center, Into::into)
     }
 
+    /// Makes the sample of a pose and hands it out.
     fn add_sample(
         &mut self,
         state: JointState,
         stamp_ns: i64,
         pixels: [[f64; 2]; 2],
         out: &mut Vec<Output>,
-    ) {
+    ) -> MirrorSample {
         let triangulated = triangulate(self.rig.camera_refs(), pixels.map(Vector2::from))
             .map_or([f64::NAN; 3], Into::into);
         let sample = MirrorSample {
@@ -650,7 +691,7 @@ impl Live {
         };
         self.counters.paired += 1;
         out.push(Output::Sample(sample));
-        self.take_sample(sample, out);
+        sample
     }
 
     /// What a new sample does: it is scored against the calibration for a

@@ -163,6 +163,7 @@ pub fn run(
         }
         None => (None, Vec::new()),
     };
+    live.publish_samples_first();
     let bus = stages::bus_of::<stages::mirror::Mirror>(prefix)?;
     let joints = bus.subscriber::<topics::JointState>()?;
     let detections = bus.subscriber::<topics::Detections>()?;
@@ -229,6 +230,12 @@ pub fn run(
             }
             for o in ready {
                 outputs.publish(o, &mut stats)?;
+            }
+            // A sample goes out before the calibration it sets going.
+            while live.holds_sample() {
+                for o in live.after_sample() {
+                    outputs.publish(o, &mut stats)?;
+                }
             }
             // Each detection from its arrival to the end of this wake's
             // publishing (the wait in the merge for the joint states to

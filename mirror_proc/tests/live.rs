@@ -134,6 +134,43 @@ fn any_interleaving_gives_the_same_outputs() {
     assert!(report.evaluation.unwrap().mirror_2d_px.unwrap() < 6.0);
 }
 
+/// With samples handed out first (as the live stage publishes them), each
+/// sample comes out alone, before the calibration it sets going, and the
+/// outputs, in order, are those of a stage that gives everything at once.
+#[test]
+fn samples_handed_out_first_come_alone_and_change_nothing_else() {
+    let (joints, detections, poses) = streams();
+    let order = by_stamp(&joints, &detections);
+    let (all_at_once, _) = run(&order, &joints, &detections);
+    let mut live = Live::new(nico_scene().rig, LiveConfig::default());
+    live.publish_samples_first();
+    let (mut j, mut d, mut out, mut alone) = (0, 0, Vec::new(), 0);
+    for take_joint in order {
+        let batch = if take_joint {
+            j += 1;
+            live.push_joint_state(joints[j - 1])
+        } else {
+            d += 1;
+            live.push_detections(detections[d - 1])
+        };
+        if live.holds_sample() {
+            // The batch ends with the sample; its calibration is not in it.
+            assert!(matches!(batch.last(), Some(Output::Sample(_))), "{batch:?}");
+            alone += 1;
+        }
+        out.extend(batch);
+        while live.holds_sample() {
+            out.extend(live.after_sample());
+        }
+    }
+    assert!(live.finished());
+    assert_eq!(
+        alone, poses,
+        "every sample handed out before what follows it"
+    );
+    assert_eq!(out, all_at_once);
+}
+
 #[test]
 fn malformed_messages_are_dropped_and_counted() {
     let (joints, detections, _) = streams();
