@@ -91,14 +91,31 @@ pub fn camera_turn(
     pixels: &[Vector2<f64>],
     pixel_sigma: f64,
 ) -> Result<Turn, GeometryError> {
-    if points.len() != pixels.len() || points.len() < 3 {
+    camera_turn_weighted(camera, points, pixels, &vec![pixel_sigma; points.len()])
+}
+
+/// [`camera_turn`] with each point's own pixel sigma (per coordinate):
+/// each point weighs by its inverse variance, and the covariance is scaled
+/// by the weighted residuals' variance, but not below what the sigmas
+/// state.
+pub fn camera_turn_weighted(
+    camera: &Camera,
+    points: &[Vector3<f64>],
+    pixels: &[Vector2<f64>],
+    pixel_sigmas: &[f64],
+) -> Result<Turn, GeometryError> {
+    if points.len() != pixels.len() || points.len() != pixel_sigmas.len() || points.len() < 3 {
         return Err(GeometryError::Degenerate(format!(
-            "a camera's turn needs at least 3 points seen, found {} points and {} pixels",
+            "a camera's turn needs at least 3 points seen, found {} points, {} pixels and {} sigmas",
             points.len(),
-            pixels.len()
+            pixels.len(),
+            pixel_sigmas.len()
         )));
     }
-    let residuals = |x: &DVector<f64>| -> Option<DVector<f64>> {
+    if pixel_sigmas.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        return Err(GeometryError::NonFinite("a point's pixel sigma"));
+    }
+    let pixel_errors = |x: &DVector<f64>| -> Option<DVector<f64>> {
         let turned = camera.turned(&Vector3::new(x[0], x[1], x[2]));
         let mut r = DVector::zeros(2 * points.len());
         for (i, (p, px)) in points.iter().zip(pixels).enumerate() {
@@ -108,15 +125,23 @@ pub fn camera_turn(
         }
         Some(r)
     };
+    let residuals = |x: &DVector<f64>| -> Option<DVector<f64>> {
+        let mut r = pixel_errors(x)?;
+        for (i, s) in pixel_sigmas.iter().enumerate() {
+            r[2 * i] /= s;
+            r[2 * i + 1] /= s;
+        }
+        Some(r)
+    };
     let (x, _) = lsq::minimize(DVector::zeros(3), residuals)?;
     let r = residuals(&x).ok_or(GeometryError::NonFinite("camera turn residuals"))?;
     let jacobian =
         lsq::jacobian(&x, residuals).ok_or(GeometryError::NonFinite("camera turn Jacobian"))?;
-    let mut covariance = lsq::covariance(&jacobian, &r, pixel_sigma * pixel_sigma)?;
+    let mut covariance = lsq::covariance(&jacobian, &r, 1.0)?;
     if covariance.residual_variance <= 0.0 {
         // A perfect fit says nothing of the noise: the stated noise does.
-        let stated = DVector::from_element(r.len(), pixel_sigma);
-        covariance = lsq::covariance(&jacobian, &stated, pixel_sigma * pixel_sigma)?;
+        let stated = DVector::from_element(r.len(), 1.0);
+        covariance = lsq::covariance(&jacobian, &stated, 1.0)?;
     }
     if !covariance.undetermined.is_empty() {
         return Err(GeometryError::Degenerate(
@@ -124,15 +149,16 @@ pub fn camera_turn(
         ));
     }
     // Not more confident than the detections' stated noise allows.
-    let scale = (pixel_sigma * pixel_sigma / covariance.residual_variance).max(1.0);
+    let scale = (1.0 / covariance.residual_variance).max(1.0);
     let w = Vector3::new(x[0], x[1], x[2]);
     let covariance = covariance.matrix.fixed_view::<3, 3>(0, 0) * scale;
+    let errors = pixel_errors(&x).ok_or(GeometryError::NonFinite("camera turn residuals"))?;
     Ok(Turn {
         camera: camera.turned(&w),
         w,
         sigma_deg: [0, 1, 2].map(|i| covariance[(i, i)].sqrt().to_degrees()),
         covariance,
-        rms_px: (r.norm_squared() / points.len() as f64).sqrt(),
+        rms_px: (errors.norm_squared() / points.len() as f64).sqrt(),
     })
 }
 

@@ -24,3 +24,4 @@ pub mod export;
 pub mod live;
 pub mod live_loop;
 pub mod plot;
+pub mod still;

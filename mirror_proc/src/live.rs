@@ -278,6 +278,8 @@ pub struct Live {
     /// The covariance of each head camera's turn as last found (rad^2),
     /// added to every later calibration's uncertainty.
     turn_covariances: [Option<Matrix3<f64>>; 2],
+    /// Where each camera has seen the markers that hold still lately.
+    still: crate::still::StillMarkers,
     /// Why calibrating stopped after a change, if it did.
     stopped: Option<String>,
 }
@@ -332,6 +334,7 @@ impl Live {
             drifted: None,
             head_cameras: Vec::new(),
             turn_covariances: [None; 2],
+            still: crate::still::StillMarkers::new(),
             stopped: None,
         }
     }
@@ -630,6 +633,7 @@ impl Live {
 
     fn on_detections(&mut self, d: &StereoDetections, out: &mut Vec<Output>) {
         self.counters.detections += 1;
+        self.still.push(d, self.config.arm_marker);
         if let Some(w) = self
             .window
             .as_mut()
@@ -767,6 +771,35 @@ impl Live {
         }
     }
 
+    /// The frames on either side of the change `d` (by stamp), where the
+    /// still markers are compared: from the epoch's first sample to the
+    /// last before the change, and from the first after it on. `None`
+    /// without samples on both sides.
+    fn still_sides(&self, d: &Drifted) -> Option<(std::ops::RangeInclusive<i64>, i64)> {
+        let stamps = |train: std::ops::Range<usize>, tests: std::ops::Range<usize>| {
+            self.train[train]
+                .iter()
+                .chain(&self.tests[tests])
+                .map(|s| s.stamp_ns)
+                .collect::<Vec<_>>()
+        };
+        let before = stamps(
+            self.epoch.train_from..d.train_from,
+            self.epoch.tests_from..d.tests_from,
+        );
+        let after = stamps(
+            d.train_from..self.train.len(),
+            d.tests_from..self.tests.len(),
+        );
+        // The first epoch holds every frame from the start.
+        let from = if self.epoch.number == 1 {
+            i64::MIN
+        } else {
+            *before.iter().min()?
+        };
+        Some((from..=*before.iter().max()?, *after.iter().min()?))
+    }
+
     /// After a change: finds the moved cameras again once enough direct
     /// views have come, and calibrates the new epoch once enough training
     /// samples have (tried again on each new one, `train`, while it fails).
@@ -792,11 +825,17 @@ impl Live {
                 .collect();
             let sigma = CalibrateOptions::default().pixel_sigma_for(&self.rig);
             let other_still = moved.len() == 1;
+            let sides = self.still_sides(&d);
             for &k in &moved {
+                let still = sides
+                    .as_ref()
+                    .map(|(before, after)| self.still.pairs(k, before.clone(), *after))
+                    .unwrap_or_default();
                 let found = epochs::find_camera(
                     &self.rig,
                     &old,
                     &since,
+                    &still,
                     k,
                     other_still,
                     sigma,
@@ -810,8 +849,10 @@ impl Live {
                             turn_deg = entry.turn_deg,
                             sigma_deg = ?entry.sigma_deg,
                             views = entry.views,
+                            still_markers = still.len(),
                             "camera found again"
                         );
+                        self.still.forget(k);
                         self.rig.cameras[k].camera_from_world =
                             Matrix3::from_row_slice(&entry.camera_from_world);
                         self.turn_covariances[found.index] = Some(found.turn_covariance);

@@ -85,11 +85,23 @@ fn a_moved_mirror_and_a_knocked_camera_are_found_and_calibrated_again() {
         assert!(angle < 0.05, "{e}");
         assert!(distance < 4.0 * sigma && distance < 1.0, "{e}");
     }
-    // The knocked camera found again, and written into the calibration.
+    // The knocked camera found again, and written into the calibration,
+    // to its stated accuracy. The hidden object's marker, which held still,
+    // pins its turn about the optical axis: 0.045 deg from the arm's views
+    // alone, about 0.025 with it.
     let found = camera["head_cameras_deg"][0][1].as_f64().unwrap();
-    assert!(found < 0.1, "{camera}");
     let cal = &placement["report"]["calibration"];
-    assert_eq!(cal["head_cameras"][0]["name"], "left", "{cal}");
+    let entry = &cal["head_cameras"][0];
+    assert_eq!(entry["name"], "left", "{cal}");
+    let sigma: Vec<f64> = (0..3)
+        .map(|i| entry["sigma_deg"][i].as_f64().unwrap())
+        .collect();
+    let total = sigma.iter().map(|s| s * s).sum::<f64>().sqrt();
+    assert!(
+        found < 3.0 * total && found < 0.1,
+        "{found} deg, 1-sigma {sigma:?}"
+    );
+    assert!(sigma[2] < 0.035, "about the optical axis: {sigma:?}");
     // The hidden object, located through the last epoch's calibration, to
     // its stated accuracy: over a metre of light path and a 60 mm stereo
     // baseline, the found camera's turn (a few hundredths of a degree)
