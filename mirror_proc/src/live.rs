@@ -207,6 +207,10 @@ struct Epoch {
     tests_from: usize,
     /// The plane of the epoch before, where its calibration starts.
     start_plane: Option<geometry::Plane>,
+    /// Samples of the calibration it kept from the epoch before (a camera
+    /// moved, the mirror did not): it is calibrated from its own samples
+    /// once it has as many.
+    kept_samples: usize,
     /// The head cameras found again before it began, in force in it.
     head_cameras: Vec<formats::calibration::HeadCameraEntry>,
 }
@@ -715,7 +719,9 @@ impl Live {
             self.recover(train, stamp_ns, out);
         } else if !train {
             self.predict(&sample, out);
-        } else if self.train.len() - self.epoch.train_from >= self.config.min_train {
+        } else if self.train.len() - self.epoch.train_from
+            >= self.config.min_train.max(self.epoch.kept_samples)
+        {
             self.recalibrate(stamp_ns, out);
         }
     }
@@ -871,12 +877,14 @@ impl Live {
             fresh = true;
             // The mirror did not move: its plane gives the moved camera's
             // mirror camera at once (the old calibration's uncertainty holds
-            // the turns of cameras found before).
-            if new_train < self.config.min_train
-                && let Some(cal) = epochs::reflected_anew(&old, &self.rig)
-            {
+            // the turns of cameras found before). The old calibration, on
+            // more samples than the few since, is kept until the new epoch
+            // has as many of its own.
+            if let Some(cal) = epochs::reflected_anew(&old, &self.rig) {
                 let cal = self.with_found_turns(cal, &moved);
+                let kept = cal.samples;
                 self.begin_epoch(cal, stamp_ns, out);
+                self.epoch.kept_samples = kept;
                 return;
             }
         }
@@ -917,6 +925,7 @@ impl Live {
             tests_from: d.tests_from,
             start_plane: self.calibration.as_ref().and_then(|c| c.plane),
             head_cameras: self.head_cameras.clone(),
+            kept_samples: 0,
         };
         tracing::info!(
             epoch = self.epoch.number,
