@@ -179,6 +179,13 @@ impl Camera {
         Ok(Vector2::new(pc.x / pc.z, pc.y / pc.z))
     }
 
+    /// The unit direction, in the world, of the ray through pixel `px`
+    /// (distorted): the inverse of [`Camera::project`] up to depth.
+    pub fn ray(&self, px: &Vector2<f64>) -> Result<Vector3<f64>, GeometryError> {
+        let xy = self.intrinsics.undistort_pixel(px)?;
+        Ok((self.camera_from_world.transpose() * Vector3::new(xy.x, xy.y, 1.0)).normalize())
+    }
+
     /// Distorted pixel coordinates of a world point.
     pub fn project(&self, world: &Vector3<f64>) -> Result<Vector2<f64>, GeometryError> {
         Ok(self.intrinsics.distort_to_pixel(&self.normalized(world)?))
@@ -293,6 +300,7 @@ mod tests {
             prop_assume!(cam.intrinsics.contains(&px, 0.0));
             let xy = cam.intrinsics.undistort_pixel(&px).unwrap();
             prop_assert!((xy - Vector2::new(x / z, y / z)).norm() < 1e-9);
+            prop_assert!((cam.ray(&px).unwrap() - p.normalize()).norm() < 1e-9);
         }
     }
 

@@ -83,9 +83,7 @@ pub fn triangulate_midpoint(
 ) -> Result<Vector3<f64>, GeometryError> {
     let mut dirs = [Vector3::zeros(); 2];
     for k in 0..2 {
-        let xy = cameras[k].intrinsics.undistort_pixel(&pixels[k])?;
-        let ray = cameras[k].camera_from_world.transpose() * Vector3::new(xy.x, xy.y, 1.0);
-        dirs[k] = ray.normalize();
+        dirs[k] = cameras[k].ray(&pixels[k])?;
     }
     let (c0, c1) = (cameras[0].center, cameras[1].center);
     let w = c0 - c1;

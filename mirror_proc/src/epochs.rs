@@ -104,8 +104,8 @@ pub struct FoundCamera {
 /// [`crate::still`]) join in, each put on the ray along which the camera
 /// saw it before the knock: a turn moves it in the image alike at any
 /// depth. Averaged over the frames on either side, they weigh far more
-/// than the arm's views; a marker whose corners a turn does not explain
-/// (it moved too) is left out.
+/// than the arm's views; a marker whose own turn disagrees with the arm's
+/// views' (it moved too) is left out.
 ///
 /// Returns the camera as found, with its turn's covariance.
 #[allow(clippy::too_many_arguments)]
@@ -124,8 +124,7 @@ pub fn find_camera(
     let other = &rig.cameras[1 - k];
     // Where the unmoved camera sees a point near `p` along its ray through `px`.
     let on_ray = |p: Vector3<f64>, px: &Vector2<f64>| -> Option<Vector3<f64>> {
-        let xy = other.intrinsics.undistort_pixel(px).ok()?;
-        let d = (other.camera_from_world.transpose() * Vector3::new(xy.x, xy.y, 1.0)).normalize();
+        let d = other.ray(px).ok()?;
         let along = d.dot(&(p - other.center));
         (along > 0.0).then(|| other.center + d * along)
     };
@@ -203,11 +202,7 @@ fn turn_with_still_markers(
     };
     let arm_sigma = shown(&arm, pixel_sigma, points.len());
     // A still corner as a point: on the ray it was seen along, at 1 m.
-    let on_ray = |px: &Vector2<f64>| -> Option<Vector3<f64>> {
-        let xy = camera.intrinsics.undistort_pixel(px).ok()?;
-        let d = (camera.camera_from_world.transpose() * Vector3::new(xy.x, xy.y, 1.0)).normalize();
-        Some(camera.center + d * 1000.0)
-    };
+    let on_ray = |px: &Vector2<f64>| Some(camera.center + camera.ray(px).ok()? * 1000.0);
     let (mut p, mut px) = (points.to_vec(), pixels.to_vec());
     let mut sigmas = vec![arm_sigma; points.len()];
     let mut joined = 0;
