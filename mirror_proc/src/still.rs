@@ -33,7 +33,7 @@ struct Sighting {
 /// A still marker's corners in one camera before and after a change.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StillPair {
-    /// Its id, and whether it is seen mirror-reversed.
+    /// Its id.
     pub id: u32,
     /// Seen in the mirror.
     pub mirrored: bool,

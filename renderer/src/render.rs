@@ -159,8 +159,7 @@ pub struct Renderer {
     last_drawn: Option<LastDrawn>,
     /// Frames drawn anew, not reused.
     frames_drawn: u64,
-    /// Poses of a moving arm: blur sigmas apart, and at most (finer in
-    /// tests, as the reference).
+    /// Where a moving arm's card is drawn over an exposure:
     /// [`MOTION_SAMPLING`] (finer in tests, as the reference).
     motion: MotionSampling,
 }
