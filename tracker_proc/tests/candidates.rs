@@ -62,6 +62,33 @@ fn adaptive_threshold(image: &Mat, window: i32) -> Mat {
     binary
 }
 
+/// The borders `findContours` (`RETR_LIST`, `CHAIN_APPROX_NONE`) finds in `binary`.
+fn their_borders(binary: &Mat) -> Vec<Vec<Point>> {
+    let mut theirs = Vector::<Vector<Point>>::new();
+    imgproc::find_contours_def(
+        binary,
+        &mut theirs,
+        imgproc::RETR_LIST,
+        imgproc::CHAIN_APPROX_NONE,
+    )
+    .unwrap();
+    theirs.iter().map(|c| c.to_vec()).collect()
+}
+
+/// Every border `scanner` finds in `binary`.
+fn our_borders(scanner: &mut BorderScanner, binary: &Mat) -> Vec<Vec<Point>> {
+    let mut ours = Vec::new();
+    scanner.scan(
+        binary.data_bytes().unwrap(),
+        binary.cols() as usize,
+        binary.rows() as usize,
+        binary.step1(0).unwrap(),
+        0..=usize::MAX,
+        |p| ours.push(p.to_vec()),
+    );
+    ours
+}
+
 #[test]
 fn the_border_scanner_finds_what_find_contours_finds() {
     let mut scanner = BorderScanner::new();
@@ -69,26 +96,11 @@ fn the_border_scanner_finds_what_find_contours_finds() {
     for (name, image) in images() {
         for window in [3, 13, 23] {
             let binary = adaptive_threshold(&image, window);
-            let mut theirs = Vector::<Vector<Point>>::new();
-            imgproc::find_contours_def(
-                &binary,
-                &mut theirs,
-                imgproc::RETR_LIST,
-                imgproc::CHAIN_APPROX_NONE,
-            )
-            .unwrap();
-            let mut ours: Vec<Vec<Point>> = Vec::new();
-            scanner.scan(
-                binary.data_bytes().unwrap(),
-                binary.cols() as usize,
-                binary.rows() as usize,
-                binary.step1(0).unwrap(),
-                0..=usize::MAX,
-                |p| ours.push(p.to_vec()),
-            );
+            let theirs = their_borders(&binary);
+            let ours = our_borders(&mut scanner, &binary);
             assert_eq!(ours.len(), theirs.len(), "{name}, window {window}: borders");
-            for (k, (a, b)) in ours.iter().zip(theirs.iter()).enumerate() {
-                assert_eq!(a, &b.to_vec(), "{name}, window {window}: border {k}");
+            for (k, (a, b)) in ours.iter().zip(&theirs).enumerate() {
+                assert_eq!(a, b, "{name}, window {window}: border {k}");
                 points += a.len();
             }
             borders += ours.len();
@@ -117,30 +129,9 @@ fn images_of_another_shape_are_scanned_afresh() {
     };
     let first = binary(4, 10, &|_, _| true);
     let second = binary(6, 7, &|x, y| (x + y) % 3 != 0);
-    let scan = |scanner: &mut BorderScanner, m: &Mat| {
-        let mut out: Vec<Vec<Point>> = Vec::new();
-        scanner.scan(
-            m.data_bytes().unwrap(),
-            m.cols() as usize,
-            m.rows() as usize,
-            m.step1(0).unwrap(),
-            0..=usize::MAX,
-            |p| out.push(p.to_vec()),
-        );
-        out
-    };
-    let mut theirs = Vector::<Vector<Point>>::new();
-    imgproc::find_contours_def(
-        &second,
-        &mut theirs,
-        imgproc::RETR_LIST,
-        imgproc::CHAIN_APPROX_NONE,
-    )
-    .unwrap();
-    let theirs: Vec<Vec<Point>> = theirs.iter().map(|c| c.to_vec()).collect();
     let mut scanner = BorderScanner::new();
-    scan(&mut scanner, &first);
-    assert_eq!(scan(&mut scanner, &second), theirs);
+    our_borders(&mut scanner, &first);
+    assert_eq!(our_borders(&mut scanner, &second), their_borders(&second));
 }
 
 #[test]
