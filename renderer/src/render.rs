@@ -21,8 +21,12 @@
 //! depth; sensor noise and optional JPEG compression follow
 //! ([`crate::sensor`]). The still scene's noise is made once, in a few
 //! copies that take turns from frame to frame; only the pixels drawn over
-//! it get noise of their own each frame (noising every pixel took about a
-//! sixth of a frame's time). What the image looks like is a [`Look`].
+//! it, and the fixed markers' cards, get noise of their own each frame
+//! (noising every pixel took about a sixth of a frame's time). A still
+//! marker is thus seen through fresh noise every frame, as a real camera
+//! sees it: its corners averaged over frames settle as they would (over a
+//! few shared copies they settled on the copies' own errors). What the
+//! image looks like is a [`Look`].
 
 use std::collections::HashMap;
 
@@ -155,6 +159,9 @@ pub struct Renderer {
     /// Per camera, [`NOISY_STILLS`] copies of its still image with sensor
     /// noise (none when the look has no noise).
     noisy_stills: [Vec<Vec<u8>>; 2],
+    /// Per camera, where the fixed cards are drawn in its still image:
+    /// noised afresh each frame.
+    fixed_drawn: [Drawn; 2],
     /// The views last drawn, before noise: reused while the arm holds still.
     last_drawn: Option<LastDrawn>,
     /// Frames drawn anew, not reused.
@@ -250,6 +257,7 @@ impl Renderer {
             shrunk: HashMap::new(),
             views,
             noisy_stills: [Vec::new(), Vec::new()],
+            fixed_drawn: [Drawn::new(0), Drawn::new(0)],
             last_drawn: None,
             frames_drawn: 0,
             motion: MOTION_SAMPLING,
@@ -260,8 +268,10 @@ impl Renderer {
             let mut image = std::mem::take(&mut renderer.views[k].image);
             renderer.shrink_cards(k, &fixed)?;
             let height = renderer.world.rig.cameras[k].intrinsics.height as usize;
-            renderer.draw_over(k, &fixed[0], &fixed, &mut image, &mut Drawn::new(height))?;
+            let mut drawn = Drawn::new(height);
+            renderer.draw_over(k, &fixed[0], &fixed, &mut image, &mut drawn)?;
             renderer.views[k].image = image;
+            renderer.fixed_drawn[k] = drawn;
         }
         if !renderer.noise.is_silent() {
             for k in 0..2 {
@@ -405,8 +415,7 @@ impl Renderer {
                     view
                 }
                 None => {
-                    let height = this.world.rig.cameras[k].intrinsics.height as usize;
-                    let mut drawn = Drawn::new(height);
+                    let mut drawn = this.fixed_drawn[k].clone();
                     out.copy_from_slice(&this.views[k].image);
                     this.draw_over(k, &middle, &items_per_pose, out, &mut drawn)?;
                     DrawnView {
@@ -1008,6 +1017,7 @@ fn nonzero_span(line: &[u8]) -> Option<(usize, usize)> {
 
 /// Where a frame was drawn over its still image: per row, spans of
 /// pixels `x0..x1`.
+#[derive(Debug, Clone)]
 struct Drawn {
     rows: Vec<Vec<(usize, usize)>>,
 }
@@ -1366,6 +1376,69 @@ mod tests {
             "{} {}",
             changed(true),
             changed(false)
+        );
+    }
+
+    /// A fixed marker's card gets noise of its own each frame, as the arm's
+    /// does: two frames that share the still scene's noisy copy differ on
+    /// it, and nowhere else but on the arm.
+    #[test]
+    fn a_still_marker_is_seen_through_fresh_noise_each_frame() {
+        let data = generate(
+            &nico_scene(),
+            0,
+            &nico_noise(),
+            Counts {
+                train: 1,
+                test: 0,
+                direct: 0,
+            },
+            3,
+        )
+        .unwrap();
+        let q = data.train[0].joints.clone().unwrap();
+        let look = Look {
+            jpeg_quality: None,
+            ..Look::realistic()
+        };
+        let world = SimWorld::nico(0).unwrap();
+        let fixed = world.fixed[0].id;
+        let mut renderer = Renderer::with_look(world, look).unwrap();
+        // The same noisy copy of the still scene behind both.
+        let (a, truth) = renderer.render_pair(&q, Facing::Mirror, 1).unwrap();
+        let (b, _) = renderer
+            .render_pair(&q, Facing::Mirror, 1 + NOISY_STILLS as u64)
+            .unwrap();
+        let width = 640;
+        let boxed = |id: u32| {
+            let (_, _, corners) = truth.markers[0]
+                .iter()
+                .find(|m| m.0 == id)
+                .expect("the card in view");
+            corners.iter().fold(
+                (Vector2::repeat(f64::MAX), Vector2::repeat(f64::MIN)),
+                |(lo, hi), c| (lo.inf(c), hi.sup(c)),
+            )
+        };
+        let changed_in = |(lo, hi): (Vector2<f64>, Vector2<f64>)| {
+            let pixels: Vec<usize> = (0..a[0].len())
+                .filter(|&i| {
+                    (lo.x..hi.x).contains(&((i % width) as f64))
+                        && (lo.y..hi.y).contains(&((i / width) as f64))
+                })
+                .collect();
+            let changed = pixels.iter().filter(|&&i| a[0][i] != b[0][i]).count();
+            changed as f64 / pixels.len() as f64
+        };
+        let on_fixed = changed_in(boxed(fixed));
+        assert!(
+            on_fixed > 0.5,
+            "{on_fixed} of the fixed card's pixels changed"
+        );
+        let all = a[0].iter().zip(&b[0]).filter(|(x, y)| x != y).count() as f64;
+        assert!(
+            all / (a[0].len() as f64) < 0.2,
+            "{all} pixels changed: the still scene's noise is shared"
         );
     }
 
