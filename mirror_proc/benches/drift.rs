@@ -338,6 +338,11 @@ fn main() {
         ("smallest", smallest),
         ("cost", cost),
     ];
+    if let Some(unknown) = asked.iter().find(|a| parts.iter().all(|(n, _)| n != *a)) {
+        let names: Vec<&str> = parts.iter().map(|(n, _)| *n).collect();
+        eprintln!("drift bench: no part named {unknown:?}; the parts are {names:?}");
+        std::process::exit(2);
+    }
     for (name, part) in parts {
         if asked.is_empty() || asked.iter().any(|a| a == name) {
             part();

@@ -1403,13 +1403,13 @@ mod tests {
         };
         let world = SimWorld::nico(0).unwrap();
         let fixed = world.fixed[0].id;
+        let width = world.rig.cameras[0].intrinsics.width as usize;
         let mut renderer = Renderer::with_look(world, look).unwrap();
         // The same noisy copy of the still scene behind both.
         let (a, truth) = renderer.render_pair(&q, Facing::Mirror, 1).unwrap();
         let (b, _) = renderer
             .render_pair(&q, Facing::Mirror, 1 + NOISY_STILLS as u64)
             .unwrap();
-        let width = 640;
         let boxed = |id: u32| {
             let (_, _, corners) = truth.markers[0]
                 .iter()

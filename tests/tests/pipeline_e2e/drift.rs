@@ -87,8 +87,8 @@ fn a_moved_mirror_and_a_knocked_camera_are_found_and_calibrated_again() {
     }
     // The knocked camera found again, and written into the calibration,
     // to its stated accuracy. The hidden object's marker, which held still,
-    // pins its turn about the optical axis: 0.045 deg from the arm's views
-    // alone, about 0.025 with it.
+    // joins the arm's views: the turn about the optical axis, 0.03 deg
+    // (1-sigma) from the arm's views alone, about 0.02 with it.
     let found = camera["head_cameras_deg"][0][1].as_f64().unwrap();
     let cal = &placement["report"]["calibration"];
     let entry = &cal["head_cameras"][0];
