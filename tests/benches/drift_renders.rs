@@ -83,7 +83,7 @@ struct Outcome {
     /// Epochs after the first: what, and the poses and the mirror views
     /// (the views a moved mirror or a knocked camera shows in live) from
     /// the change to where it was found, both ends counted.
-    found: Vec<(String, Option<(usize, usize)>)>,
+    found: Vec<(String, Option<(u64, usize)>)>,
     /// The new epoch's plane at 15 samples: (deg, mm) from the truth.
     plane: Option<(f64, f64)>,
     /// The found camera: deg from the truth, and per axis (tilt, pan,
