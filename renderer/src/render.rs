@@ -1294,12 +1294,9 @@ mod tests {
         assert_eq!(rows, vec![vec![], vec![(5, 15), (30, 41)]]);
     }
 
-    /// The sensor noise of a frame (its difference from the same frame
-    /// rendered without noise, over each pixel's expected sigma) has the
-    /// same spread on what was drawn over the still scene (the arm's card)
-    /// as on the still scene, and differs from frame to frame on both.
-    #[test]
-    fn what_moves_is_as_noisy_as_the_still_scene_and_the_noise_changes_per_frame() {
+    /// An arm pose in front of the mirror (seed 3's first calibration
+    /// pose) and the realistic look without JPEG, for the noise tests.
+    fn mirror_pose_realistic_look() -> (Vec<f64>, Look) {
         let data = generate(
             &nico_scene(),
             0,
@@ -1312,11 +1309,20 @@ mod tests {
             3,
         )
         .unwrap();
-        let q = data.train[0].joints.clone().unwrap();
         let look = Look {
             jpeg_quality: None,
             ..Look::realistic()
         };
+        (data.train[0].joints.clone().unwrap(), look)
+    }
+
+    /// The sensor noise of a frame (its difference from the same frame
+    /// rendered without noise, over each pixel's expected sigma) has the
+    /// same spread on what was drawn over the still scene (the arm's card)
+    /// as on the still scene, and differs from frame to frame on both.
+    #[test]
+    fn what_moves_is_as_noisy_as_the_still_scene_and_the_noise_changes_per_frame() {
+        let (q, look) = mirror_pose_realistic_look();
         let silent = Look {
             read_noise_dn: 0.0,
             electrons_per_dn: 0.0,
@@ -1381,26 +1387,10 @@ mod tests {
 
     /// A fixed marker's card gets noise of its own each frame, as the arm's
     /// does: two frames that share the still scene's noisy copy differ on
-    /// it, and nowhere else but on the arm.
+    /// it, and on little else (the arm).
     #[test]
     fn a_still_marker_is_seen_through_fresh_noise_each_frame() {
-        let data = generate(
-            &nico_scene(),
-            0,
-            &nico_noise(),
-            Counts {
-                train: 1,
-                test: 0,
-                direct: 0,
-            },
-            3,
-        )
-        .unwrap();
-        let q = data.train[0].joints.clone().unwrap();
-        let look = Look {
-            jpeg_quality: None,
-            ..Look::realistic()
-        };
+        let (q, look) = mirror_pose_realistic_look();
         let world = SimWorld::nico(0).unwrap();
         let fixed = world.fixed[0].id;
         let width = world.rig.cameras[0].intrinsics.width as usize;
