@@ -261,8 +261,9 @@ mod tests {
     /// corners over 150 frames on either side (0.05 px a frame), with a
     /// second marker that moved (3 px) as well. The still corners cut the
     /// stated sigma about the optical axis by more than half and bring the
-    /// turn within 0.01 deg, inside 4 stated sigmas; the moved marker is
-    /// left out (the turn is the same without it).
+    /// turn within 0.02 deg (0.1 from the arm alone), inside 4 stated
+    /// sigmas; the moved marker is left out (the turn is the same without
+    /// it).
     #[test]
     fn still_markers_pin_a_knocked_cameras_turn() {
         let camera = nico_scene().rig.cameras[0];
@@ -345,7 +346,7 @@ mod tests {
             arm_only.sigma_deg
         );
         assert!(
-            error(&with) < 0.01 && error(&with) < 4.0 * total_sigma(&with),
+            error(&with) < 0.02 && error(&with) < 4.0 * total_sigma(&with),
             "{} deg off, 1-sigma {} deg (arm only: {} deg off)",
             error(&with),
             total_sigma(&with),

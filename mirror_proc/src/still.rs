@@ -22,6 +22,13 @@ pub const KEPT: usize = 4000;
 /// Frames a marker must be seen in on each side of a change to count.
 pub const MIN_FRAMES: usize = 10;
 
+/// What a still corner's move is known to at best, px per coordinate,
+/// however many frames are averaged: the tracker reads a marker with an
+/// error of its own at each placement on the pixel grid, and a turn moves
+/// it to another. 0.03 px on renders (`docs/methods.md`, "When the world
+/// changes").
+pub const CORNER_FLOOR_PX: f64 = 0.03;
+
 /// One still marker seen by one camera in one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Sighting {
@@ -42,7 +49,8 @@ pub struct StillPair {
     /// Its corners after, px.
     pub after: [Vector2<f64>; 4],
     /// The 1-sigma of each corner coordinate's move from before to after,
-    /// px: the frames' scatter over their number, on both sides.
+    /// px: the frames' scatter over their number, on both sides, and
+    /// [`CORNER_FLOOR_PX`].
     pub sigma_px: f64,
     /// Frames before and after.
     pub frames: (usize, usize),
@@ -114,9 +122,10 @@ impl StillMarkers {
                 let (after, spread_a) = medians(&a);
                 // The median of n draws scatters 1.2533 / sqrt(n) times as
                 // much as one draw.
-                let sigma_px = 1.2533
+                let averaged = 1.2533
                     * (spread_b.powi(2) / b.len() as f64 + spread_a.powi(2) / a.len() as f64)
                         .sqrt();
+                let sigma_px = averaged.hypot(CORNER_FLOOR_PX);
                 StillPair {
                     id,
                     mirrored,
@@ -224,8 +233,9 @@ mod tests {
                 "{p:?}"
             );
         }
-        // Over 30 frames on each side: 1.2533 * 1.4826 * 0.1 * sqrt(2 / 30).
-        let expected = 1.2533 * 1.4826 * 0.1 * (2.0f64 / 30.0).sqrt();
+        // Over 30 frames on each side: 1.2533 * 1.4826 * 0.1 * sqrt(2 / 30),
+        // with the floor.
+        let expected = (1.2533 * 1.4826 * 0.1 * (2.0f64 / 30.0).sqrt()).hypot(CORNER_FLOOR_PX);
         assert!((p.sigma_px / expected - 1.0).abs() < 1e-9, "{p:?}");
         still.forget(0);
         assert!(still.pairs(0, 0..=29, 35).is_empty());

@@ -458,12 +458,9 @@ impl Renderer {
             .collect()
     }
 
-    /// The cards fixed in the world, all turned to the mirror.
+    /// The cards fixed in the world, each turned its own way.
     fn fixed_cards(&self) -> impl Iterator<Item = (u32, Vector3<f64>, Facing)> + '_ {
-        self.world
-            .fixed
-            .iter()
-            .map(|f| (f.id, f.center, Facing::Mirror))
+        self.world.fixed.iter().map(|f| (f.id, f.center, f.faces))
     }
 
     /// How many poses to draw the arm at over the exposure: one per

@@ -11,8 +11,8 @@
 mod world;
 
 pub use world::{
-    ARM_MARKER_ID, Facing, FixedMarker, HIDDEN_OBJECT_ID, MARKER_MARGIN_MM, MARKER_SIZE_MM,
-    ROBOT_BODY_MM, SeenCard, SimWorld, WorldChange, card_corners, line_through_box,
+    ARM_MARKER_ID, FIDUCIAL_IDS, Facing, FixedMarker, HIDDEN_OBJECT_ID, MARKER_MARGIN_MM,
+    MARKER_SIZE_MM, ROBOT_BODY_MM, SeenCard, SimWorld, WorldChange, card_corners, line_through_box,
     segment_meets_box,
 };
 

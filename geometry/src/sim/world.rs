@@ -4,7 +4,7 @@
 //! geometry: the drawing itself, and what the image looks like, is
 //! `renderer`'s.
 
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
 
 use super::{Mirror, nico_noise, nico_scene};
 use crate::{GeometryError, Rig};
@@ -17,6 +17,9 @@ pub const MARKER_MARGIN_MM: f64 = 15.0;
 pub const ARM_MARKER_ID: u32 = 0;
 /// Id of the object placed where only the mirror shows it.
 pub const HIDDEN_OBJECT_ID: u32 = 7;
+/// Ids of the fiducials: cards fixed in the room, seen directly, one at
+/// each top corner of the view (left, right).
+pub const FIDUCIAL_IDS: [u32; 2] = [12, 13];
 
 /// The robot's head (around the cameras), neck and torso as boxes: x, y,
 /// z extents in the world, mm. The renderer draws them (seen in the glass);
@@ -66,6 +69,8 @@ pub struct FixedMarker {
     pub id: u32,
     /// Centre in the world, mm.
     pub center: Vector3<f64>,
+    /// Which way its card is turned.
+    pub faces: Facing,
 }
 
 /// Everything the simulated camera knows: the true world, not the robot's model.
@@ -105,8 +110,11 @@ pub struct SeenCard {
 
 impl SimWorld {
     /// The Nico scene in front of mirror `mirror`, with the preset's encoder
-    /// offsets, and a marked object beside and behind the head that the
-    /// cameras can only see in the mirror.
+    /// offsets, a marked object beside and behind the head that the
+    /// cameras can only see in the mirror, and two fiducials
+    /// ([`FIDUCIAL_IDS`]) they see directly, at the top corners of their
+    /// views: still markers far apart in the image, which pin a knocked
+    /// camera's turn about its optical axis (`docs/methods.md`).
     pub fn nico(mirror: usize) -> Result<Self, GeometryError> {
         let scene = nico_scene();
         let glass = *scene
@@ -116,13 +124,22 @@ impl SimWorld {
                 placement: mirror,
                 placements: scene.mirrors.len(),
             })?;
-        let fixed = hidden_object_spot(&scene.rig, &glass)
-            .map(|center| FixedMarker {
-                id: HIDDEN_OBJECT_ID,
-                center,
-            })
+        let hidden = hidden_object_spot(&scene.rig, &glass).map(|center| FixedMarker {
+            id: HIDDEN_OBJECT_ID,
+            center,
+            faces: Facing::Mirror,
+        });
+        let fiducials = [false, true]
             .into_iter()
-            .collect();
+            .zip(FIDUCIAL_IDS)
+            .map(|(right, id)| {
+                fiducial_spot(&scene.rig, &glass, right).map(|center| FixedMarker {
+                    id,
+                    center,
+                    faces: Facing::Head,
+                })
+            });
+        let fixed = std::iter::once(hidden).chain(fiducials).flatten().collect();
         Ok(Self {
             rig: scene.rig,
             mirror: Some(glass),
@@ -256,6 +273,58 @@ fn hidden_object_spot(rig: &Rig, mirror: &Mirror) -> Option<Vector3<f64>> {
     })
 }
 
+/// How far the fiducials stand in front of the glass at least, mm: clear
+/// of a mirror bumped towards the robot by a centimetre or two.
+const FIDUCIAL_CLEARANCE_MM: f64 = 60.0;
+/// The fiducials' cards lie above this image row in both cameras, px: the
+/// top of the view, over the wall and the mirror's frame, where the arm's
+/// card is never seen.
+const FIDUCIAL_BAND_PX: f64 = 175.0;
+
+/// A spot for a fiducial facing the head at the top left (or `right`) of
+/// both cameras' views: in front of the glass by
+/// [`FIDUCIAL_CLEARANCE_MM`], its card whole in both images within the
+/// top band, and as far from the image centres as that allows (the
+/// farther out, the better it shows a turn about the optical axis).
+fn fiducial_spot(rig: &Rig, mirror: &Mirror, right: bool) -> Option<Vector3<f64>> {
+    let head = 0.5 * (rig.cameras[0].center + rig.cameras[1].center);
+    let side = MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM;
+    let sign = if right { 1.0 } else { -1.0 };
+    let mut best: Option<(f64, Vector3<f64>)> = None;
+    for z in (0..=8).map(|i| 300.0 + 25.0 * f64::from(i)) {
+        for y in (0..=16).map(|i| -100.0 - 12.5 * f64::from(i)) {
+            for x in (4..=40).map(|i| sign * 12.5 * f64::from(i)) {
+                let c = Vector3::new(x, y, z);
+                let corners = card_corners(&c, &head, side);
+                let clear = corners
+                    .iter()
+                    .all(|p| mirror.plane.signed_distance(p) > FIDUCIAL_CLEARANCE_MM);
+                let mut reach = f64::INFINITY;
+                let seen = clear
+                    && rig.cameras.iter().all(|cam| {
+                        let centre = Vector2::new(cam.intrinsics.cx, cam.intrinsics.cy);
+                        let ok = corners.iter().chain([&c]).all(|p| {
+                            cam.depth(p) > 0.0
+                                && cam.project(p).is_ok_and(|px| {
+                                    cam.intrinsics.contains(&px, 15.0)
+                                        && px.y < FIDUCIAL_BAND_PX
+                                        && sign * (px.x - centre.x) > 0.0
+                                })
+                        });
+                        if let Ok(px) = cam.project(&c) {
+                            reach = reach.min((px - centre).norm());
+                        }
+                        ok
+                    });
+                if seen && best.is_none_or(|(r, _)| reach > r) {
+                    best = Some((reach, c));
+                }
+            }
+        }
+    }
+    best.map(|(_, c)| c)
+}
+
 /// Card corners (TL, TR, BR, BL as the viewer at `eye` sees them) of a card
 /// of side `side` centred at `center` and facing `eye`.
 pub fn card_corners(center: &Vector3<f64>, eye: &Vector3<f64>, side: f64) -> [Vector3<f64>; 4] {
@@ -284,7 +353,8 @@ mod tests {
             let world = SimWorld::nico(placement).unwrap();
             let hidden = world.fixed.first().expect("a hidden object");
             assert_eq!(hidden.id, HIDDEN_OBJECT_ID);
-            let seen = world.seen_card(hidden.center, Facing::Mirror, MARKER_SIZE_MM);
+            assert_eq!(hidden.faces, Facing::Mirror);
+            let seen = world.seen_card(hidden.center, hidden.faces, MARKER_SIZE_MM);
             assert!(seen.mirrored);
             for cam in &world.rig.cameras {
                 assert!(cam.depth(&hidden.center) < 0.0, "behind the head");
@@ -295,5 +365,50 @@ mod tests {
             SimWorld::nico(3),
             Err(GeometryError::NoSuchMirror { placement: 3, .. })
         ));
+    }
+
+    /// Each placement's fiducials are seen directly by both cameras, whole,
+    /// at the top left and top right of the view, far from its centre, and
+    /// stay in front of a mirror bumped 2 deg and 20 mm towards the robot.
+    /// Placement 1's glass, turned towards the robot on the left, leaves no
+    /// room for the left one.
+    #[test]
+    fn the_fiducials_are_seen_directly_at_the_top_corners() {
+        for (placement, expected) in [
+            (0, &FIDUCIAL_IDS[..]),
+            (1, &FIDUCIAL_IDS[1..]),
+            (2, &FIDUCIAL_IDS[..]),
+        ] {
+            let world = SimWorld::nico(placement).unwrap();
+            let bumped = world.mirror.unwrap().moved(2.0, 20.0);
+            let ids: Vec<u32> = world.fixed.iter().map(|f| f.id).collect();
+            assert_eq!(ids[0], HIDDEN_OBJECT_ID);
+            assert_eq!(ids[1..], *expected, "placement {placement}");
+            for f in &world.fixed[1..] {
+                let sign = if f.id == FIDUCIAL_IDS[0] { -1.0 } else { 1.0 };
+                assert_eq!(f.faces, Facing::Head);
+                let seen = world.seen_card(f.center, f.faces, MARKER_SIZE_MM + 30.0);
+                assert!(!seen.mirrored);
+                for p in seen.corners {
+                    assert!(
+                        bumped.plane.signed_distance(&p) > 0.0,
+                        "placement {placement}"
+                    );
+                }
+                for cam in &world.rig.cameras {
+                    let centre = Vector2::new(cam.intrinsics.cx, cam.intrinsics.cy);
+                    let px = cam.project(&f.center).unwrap();
+                    assert!((px - centre).norm() > 150.0, "placement {placement}: {px}");
+                    assert!(sign * (px.x - centre.x) > 0.0 && px.y < centre.y);
+                    for c in seen.corners {
+                        let c = cam.project(&c).unwrap();
+                        assert!(
+                            cam.intrinsics.contains(&c, 10.0),
+                            "placement {placement}: {c}"
+                        );
+                    }
+                }
+            }
+        }
     }
 }
