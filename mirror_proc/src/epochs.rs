@@ -352,6 +352,11 @@ mod tests {
             total_sigma(&with),
             error(&arm_only)
         );
+        assert!(
+            error(&arm_only) > 2.0 * error(&with),
+            "{}",
+            error(&arm_only)
+        );
         assert!((with.w - without_moved.w).norm().to_degrees() < 1e-6);
     }
 }

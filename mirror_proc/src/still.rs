@@ -16,8 +16,8 @@ use messages::StereoDetections;
 use nalgebra::Vector2;
 
 /// Sightings kept per camera (a marker in a frame is one): at 30 fps and
-/// one still marker, two minutes.
-pub const KEPT: usize = 4000;
+/// three still markers (the simulated room's), two minutes.
+pub const KEPT: usize = 12_000;
 
 /// Frames a marker must be seen in on each side of a change to count.
 pub const MIN_FRAMES: usize = 10;

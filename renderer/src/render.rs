@@ -263,7 +263,7 @@ impl Renderer {
             motion: MOTION_SAMPLING,
         };
         // The fixed cards do not move: drawn into the still image once.
-        let fixed = [renderer.items(None, Facing::Mirror)?];
+        let fixed = [renderer.items(None)?];
         for k in 0..2 {
             let mut image = std::mem::take(&mut renderer.views[k].image);
             renderer.shrink_cards(k, &fixed)?;
@@ -361,7 +361,7 @@ impl Renderer {
         // What is drawn once, unblurred (links, backs): at the exposure's middle.
         let mut middle = Vec::new();
         if reused.is_none() {
-            middle = self.items(Some(q), arm_faces)?;
+            middle = self.items(Some((q, arm_faces)))?;
             self.frames_drawn += 1;
             let steps = self.motion_steps(&open, &close, arm_faces)?;
             // The poses' spread widened to the exposure's: n midpoints of
@@ -378,7 +378,7 @@ impl Renderer {
                     .zip(&close)
                     .map(|(a, b)| a + (b - a) * f)
                     .collect();
-                items_per_pose.push(self.items(Some(&pose), arm_faces)?);
+                items_per_pose.push(self.items(Some((&pose, arm_faces)))?);
             }
         }
         let code_side = MARKER_SIZE_MM;
@@ -497,20 +497,18 @@ impl Renderer {
         Ok((steps.ceil() as usize).clamp(1, self.motion.max_steps))
     }
 
-    /// What is drawn for the arm at `q` (its card, the card's back, its
-    /// links), or with `q` `None` for the fixed cards; directly and in the
-    /// glass, with the glass's ghost.
-    fn items(&self, q: Option<&[f64]>, arm_faces: Facing) -> Result<Vec<Item>> {
+    /// What is drawn for the arm at `q` with its card turned `faces` (its
+    /// card, the card's back, its links), or with `arm_at` `None` for the
+    /// fixed cards (each turned its own way); directly and in the glass,
+    /// with the glass's ghost.
+    fn items(&self, arm_at: Option<(&[f64], Facing)>) -> Result<Vec<Item>> {
         let arm = self.world.rig.arm.as_ref().ok_or(RenderError::NoArm)?;
         let offsets = &self.world.true_offsets;
-        let cards = match q {
-            Some(q) => vec![(
-                self.world.arm_marker,
-                arm.end_effector(q, offsets)?,
-                arm_faces,
-            )],
+        let cards = match arm_at {
+            Some((q, faces)) => vec![(self.world.arm_marker, arm.end_effector(q, offsets)?, faces)],
             None => self.fixed_cards().collect(),
         };
+        let q = arm_at.map(|(q, _)| q);
         let look = &self.look;
         let lit = |p: &Vector3<f64>, n: &Vector3<f64>| {
             look.exposure_dn * if look.room { irradiance(p, n) } else { 1.0 }

@@ -10,13 +10,14 @@
 //! - the knocked camera's found pose against the truth (the report), and
 //!   per axis in its stated 1-sigma.
 //!
-//! A run with no change counts false alarms. Runs are not repeatable by
-//! seed: which frame of a pose's dwell is sampled depends on timing. The sample-level bench
+//! A run with no change, 60 poses long (50 calibration, 10 test), counts
+//! false alarms. Runs are not repeatable by seed: which frame of a pose's
+//! dwell is sampled depends on timing. The sample-level bench
 //! (`cargo bench -p mirror_proc --bench drift`) covers many more seeds at a
 //! fixed 0.2 px, without frames; this one has the tracker's own noise and
 //! the markers that hold still.
 //!
-//! `cargo bench -p tests --bench drift_renders` (about 25 s a run: three
+//! `cargo bench -p tests --bench drift_renders` (25-35 s a run: three
 //! changes and an unchanged run a seed); `MIRROR_BENCH_SEEDS=N` runs seeds 1..=N (default 4), and
 //! `-- camera` (say) only the changes whose name holds that word. Under
 //! `cargo test` nothing runs.
@@ -33,6 +34,13 @@ use serde_json::Value;
 
 /// The pose (from 0) at which the world changes: after the plan's own 40.
 const AT_POSE: usize = 40;
+
+/// Test poses of every run, after its calibration poses.
+const TEST_POSES: usize = 10;
+
+/// Calibration poses of an unchanged run: with its test poses, the 60
+/// poses of the drift issue's false-alarm runs.
+const UNCHANGED_TRAIN: usize = 50;
 
 /// Samples (kept or set aside) the moved mirror's new epoch is judged at.
 const NEW_SAMPLES: u32 = 15;
@@ -71,7 +79,7 @@ fn scenarios() -> [Scenario; 4] {
             }),
         },
         Scenario {
-            name: "nothing changes",
+            name: "nothing changes (60 poses)",
             event: "",
             change: None,
         },
@@ -99,10 +107,15 @@ fn run(bins: &Path, scenario: &Scenario, seed: u64) -> Outcome {
     } else {
         format!("\n[[event]]\nat_pose = {AT_POSE}\n{}\n", scenario.event)
     };
+    let train = if scenario.change.is_some() {
+        AT_POSE - TEST_POSES
+    } else {
+        UNCHANGED_TRAIN
+    };
     std::fs::write(
         &config,
         format!(
-            "preset = \"nico\"\nmirrors = [0]\ntrain_poses = 30\ntest_poses = 10\ndirect_poses = 0\n\
+            "preset = \"nico\"\nmirrors = [0]\ntrain_poses = {train}\ntest_poses = {TEST_POSES}\ndirect_poses = 0\n\
              method = \"joint+kinematics\"\nsource = \"sim\"\nfps = 30.0\nmove_ms = 100\n\
              dwell_ms = 170\nseed = {seed}\nmin_train = 8\nrealtime_priority = 0\n{event}"
         ),

@@ -129,7 +129,12 @@ fn live_pipeline_calibrates_against_the_simulators_truth() {
         .map(|v| v.as_f64().unwrap())
         .collect();
     let world = geometry::sim::SimWorld::nico(0).unwrap();
-    let truth = world.fixed[0].center;
+    let truth = world
+        .fixed
+        .iter()
+        .find(|f| f.id == geometry::sim::HIDDEN_OBJECT_ID)
+        .expect("a hidden object")
+        .center;
     let cal = &live["calibration"]["cameras"][0]["center"];
     let mirror_cam = nalgebra::Vector3::new(
         cal[0].as_f64().unwrap(),

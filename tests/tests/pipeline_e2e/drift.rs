@@ -86,9 +86,11 @@ fn a_moved_mirror_and_a_knocked_camera_are_found_and_calibrated_again() {
         assert!(distance < 4.0 * sigma && distance < 1.0, "{e}");
     }
     // The knocked camera found again, and written into the calibration,
-    // to its stated accuracy. The hidden object's marker, which held still,
-    // joins the arm's views: the turn about the optical axis, 0.03 deg
-    // (1-sigma) from the arm's views alone, about 0.02 with it.
+    // to its stated accuracy and within the 0.02 deg the drift issue asks.
+    // The markers that held still (the hidden object's in the glass, the
+    // two fiducials at the top of the view) join the arm's views: the turn
+    // about the optical axis, 0.03 deg (1-sigma) from the arm's views
+    // alone, about 0.003 with them.
     let found = camera["head_cameras_deg"][0][1].as_f64().unwrap();
     let cal = &placement["report"]["calibration"];
     let entry = &cal["head_cameras"][0];
@@ -98,14 +100,14 @@ fn a_moved_mirror_and_a_knocked_camera_are_found_and_calibrated_again() {
         .collect();
     let total = sigma.iter().map(|s| s * s).sum::<f64>().sqrt();
     assert!(
-        found < 3.0 * total && found < 0.1,
+        found < 3.0 * total && found < 0.02,
         "{found} deg, 1-sigma {sigma:?}"
     );
-    assert!(sigma[2] < 0.035, "about the optical axis: {sigma:?}");
+    assert!(sigma[2] < 0.01, "about the optical axis: {sigma:?}");
     // The hidden object, located through the last epoch's calibration, to
     // its stated accuracy: over a metre of light path and a 60 mm stereo
-    // baseline, the found camera's turn (a few hundredths of a degree)
-    // moves it by millimetres in depth.
+    // baseline, the found camera's turn (a few thousandths of a degree)
+    // moves it by a fraction of a millimetre in depth.
     let object = placement["hidden_object_error_mm"].as_f64().unwrap();
     let sigma = placement["hidden_object_sigma_mm"].as_f64().unwrap();
     assert!(
