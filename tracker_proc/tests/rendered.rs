@@ -322,23 +322,10 @@ fn the_rooms_fixed_cards_are_read_as_drawn_on_the_realistic_look() {
             .collect();
         let mut renderer = Renderer::with_look(world, Look::realistic()).unwrap();
         // The arm held where it hides none of them: a training pose.
-        let data = generate(
-            &nico_scene(),
-            mirror,
-            &nico_noise(),
-            Counts {
-                train: 1,
-                test: 0,
-                direct: 0,
-            },
-            5,
-        )
-        .unwrap();
-        let (images, truth) = render(
-            &mut renderer,
-            data.train[0].joints.as_ref().unwrap(),
-            Facing::Mirror,
-        );
+        let q = geometry::sim::nico_train_poses(mirror, 1, 5)
+            .unwrap()
+            .remove(0);
+        let (images, truth) = render(&mut renderer, &q, Facing::Mirror);
         for k in 0..2 {
             let found = detector.detect(&images[k]).unwrap();
             for &(id, mirrored) in &fixed {
