@@ -261,7 +261,7 @@ mod tests {
     /// corners over 150 frames on either side (0.05 px a frame), with a
     /// second marker that moved (3 px) as well. The still corners cut the
     /// stated sigma about the optical axis by more than half and bring the
-    /// turn within 0.02 deg (0.1 from the arm alone), inside 4 stated
+    /// turn within 0.02 deg (less than half the arm's own error), inside 4 stated
     /// sigmas; the moved marker is left out (the turn is the same without
     /// it).
     #[test]

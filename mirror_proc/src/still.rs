@@ -50,7 +50,7 @@ pub struct StillPair {
     pub after: [Vector2<f64>; 4],
     /// The 1-sigma of each corner coordinate's move from before to after,
     /// px: the frames' scatter over their number, on both sides, and
-    /// [`CORNER_FLOOR_PX`].
+    /// [`CORNER_FLOOR_PX`] in quadrature.
     pub sigma_px: f64,
     /// Frames before and after.
     pub frames: (usize, usize),

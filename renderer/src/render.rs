@@ -497,10 +497,10 @@ impl Renderer {
         Ok((steps.ceil() as usize).clamp(1, self.motion.max_steps))
     }
 
-    /// What is drawn for the arm at `q` with its card turned `faces` (its
-    /// card, the card's back, its links), or with `arm_at` `None` for the
-    /// fixed cards (each turned its own way); directly and in the glass,
-    /// with the glass's ghost.
+    /// What is drawn for the arm with `arm_at` `Some((q, faces))`: at `q`,
+    /// its card turned `faces` (its card, the card's back, its links); or
+    /// with `None` for the fixed cards (each turned its own way); directly
+    /// and in the glass, with the glass's ghost.
     fn items(&self, arm_at: Option<(&[f64], Facing)>) -> Result<Vec<Item>> {
         let arm = self.world.rig.arm.as_ref().ok_or(RenderError::NoArm)?;
         let offsets = &self.world.true_offsets;

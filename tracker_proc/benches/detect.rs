@@ -31,7 +31,6 @@ use std::hint::black_box;
 use std::time::{Duration, Instant};
 use tracker_proc::{Detector, StockPass, Tracked, Tracker, diagonal_intersection};
 
-/// The training poses the frames go through.
 /// Mirror placement 0 with the arm's card and the hidden object, as the
 /// figures in `docs/benchmarks.md` were measured: the room's fiducials,
 /// printed cards that the stock pass would read as well, left out.
@@ -41,6 +40,7 @@ fn bench_world() -> SimWorld {
     world
 }
 
+/// The training poses the frames go through.
 fn poses() -> Vec<Vec<f64>> {
     nico_train_poses(0, 20, 4).unwrap()
 }

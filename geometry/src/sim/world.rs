@@ -1,9 +1,8 @@
 //! The simulated world the camera renders: the Nico scene in front of one
 //! mirror placement, the true encoder offsets, the marker cards (the arm's,
 //! a hidden object's and the fiducials) and where the cameras see each
-//! card. Pure
-//! geometry: the drawing itself, and what the image looks like, is
-//! `renderer`'s.
+//! card. Pure geometry: the drawing itself, and what the image looks like,
+//! is `renderer`'s.
 
 use nalgebra::{Vector2, Vector3};
 
@@ -391,8 +390,8 @@ mod tests {
     /// them.
     #[test]
     fn the_fiducials_are_seen_directly_at_the_top_corners() {
-        for (placement, expected) in [(0, &FIDUCIAL_IDS[..]), (1, &[][..]), (2, &FIDUCIAL_IDS[..])]
-        {
+        let table: [(usize, &[u32]); 3] = [(0, &FIDUCIAL_IDS), (1, &[]), (2, &FIDUCIAL_IDS)];
+        for (placement, expected) in table {
             let world = SimWorld::nico(placement).unwrap();
             let bumped = world.mirror.unwrap().moved(2.0, 20.0);
             let ids: Vec<u32> = world.fixed.iter().map(|f| f.id).collect();
@@ -401,7 +400,8 @@ mod tests {
             for f in &world.fixed[1..] {
                 let sign = if f.id == FIDUCIAL_IDS[0] { -1.0 } else { 1.0 };
                 assert_eq!(f.faces, Facing::Head);
-                let seen = world.seen_card(f.center, f.faces, MARKER_SIZE_MM + 30.0);
+                let seen =
+                    world.seen_card(f.center, f.faces, MARKER_SIZE_MM + 2.0 * MARKER_MARGIN_MM);
                 assert!(!seen.mirrored);
                 for p in seen.corners {
                     assert!(
@@ -411,8 +411,12 @@ mod tests {
                 }
                 for cam in &world.rig.cameras {
                     for p in seen.corners {
+                        // Not over the glass, even the bumped glass.
                         let beyond = cam.center + (p - cam.center) * 20.0;
-                        assert!(!world.mirror.unwrap().ray_hits_glass(&cam.center, &beyond));
+                        assert!(
+                            !bumped.ray_hits_glass(&cam.center, &beyond),
+                            "placement {placement}"
+                        );
                     }
                     let centre = Vector2::new(cam.intrinsics.cx, cam.intrinsics.cy);
                     let px = cam.project(&f.center).unwrap();
@@ -438,7 +442,8 @@ mod tests {
     /// a fiducial in either image, nor near the reflection of a fiducial's
     /// back: the renderer draws what is seen in the glass over the still
     /// image with no depth test. (A direct view's card is in front of
-    /// everything, and drawn so.)
+    /// everything, and drawn so.) A sample of the poses: the card, not the
+    /// links or the card's back.
     #[test]
     fn the_arms_card_never_meets_a_fiducial_or_its_reflected_back() {
         use crate::sim::{Counts, generate, nico_noise, nico_scene};
