@@ -69,6 +69,13 @@ impl Mirror {
         }
     }
 
+    /// Whether `eye` sees the glass behind the point `p` in front of it:
+    /// the line of sight through `p` meets the glass farther on.
+    pub fn glass_behind(&self, eye: &Vector3<f64>, p: &Vector3<f64>) -> bool {
+        // Far enough along the line to be past any glass in the room.
+        self.ray_hits_glass(eye, &(eye + (p - eye) * 20.0))
+    }
+
     /// Whether the ray from `eye` to the virtual point `behind` passes through the glass.
     pub fn ray_hits_glass(&self, eye: &Vector3<f64>, behind: &Vector3<f64>) -> bool {
         let (de, db) = (

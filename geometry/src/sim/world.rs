@@ -299,39 +299,35 @@ fn fiducial_spot(rig: &Rig, mirror: &Mirror, right: bool) -> Option<Vector3<f64>
             for x in (4..=40).map(|i| sign * 12.5 * f64::from(i)) {
                 let c = Vector3::new(x, y, z);
                 let corners = card_corners(&c, &head, side);
-                let clear = corners
+                if !corners
                     .iter()
-                    .all(|p| mirror.plane.signed_distance(p) > FIDUCIAL_CLEARANCE_MM);
-                // Its outline (corners and edge midpoints) seen past the glass.
+                    .all(|p| mirror.plane.signed_distance(p) > FIDUCIAL_CLEARANCE_MM)
+                {
+                    continue;
+                }
+                // Its outline (corners and edge midpoints), none against the glass.
                 let outline: Vec<Vector3<f64>> = (0..4)
                     .flat_map(|i| [corners[i], 0.5 * (corners[i] + corners[(i + 1) % 4])])
                     .collect();
-                let past_glass = |cam: &crate::Camera| {
-                    outline.iter().all(|p| {
-                        let beyond = cam.center + (p - cam.center) * 20.0;
-                        !mirror.ray_hits_glass(&cam.center, &beyond)
-                    })
-                };
                 let mut reach = f64::INFINITY;
-                let seen = clear
-                    && rig.cameras.iter().all(|cam| {
-                        if !past_glass(cam) {
-                            return false;
-                        }
-                        let centre = Vector2::new(cam.intrinsics.cx, cam.intrinsics.cy);
-                        let ok = corners.iter().chain([&c]).all(|p| {
-                            cam.depth(p) > 0.0
-                                && cam.project(p).is_ok_and(|px| {
-                                    cam.intrinsics.contains(&px, 15.0)
-                                        && px.y < FIDUCIAL_BAND_PX
-                                        && sign * (px.x - centre.x) > 0.0
-                                })
-                        });
-                        if let Ok(px) = cam.project(&c) {
-                            reach = reach.min((px - centre).norm());
-                        }
-                        ok
+                let seen = rig.cameras.iter().all(|cam| {
+                    if outline.iter().any(|p| mirror.glass_behind(&cam.center, p)) {
+                        return false;
+                    }
+                    let centre = Vector2::new(cam.intrinsics.cx, cam.intrinsics.cy);
+                    let ok = corners.iter().chain([&c]).all(|p| {
+                        cam.depth(p) > 0.0
+                            && cam.project(p).is_ok_and(|px| {
+                                cam.intrinsics.contains(&px, 15.0)
+                                    && px.y < FIDUCIAL_BAND_PX
+                                    && sign * (px.x - centre.x) > 0.0
+                            })
                     });
+                    if let Ok(px) = cam.project(&c) {
+                        reach = reach.min((px - centre).norm());
+                    }
+                    ok
+                });
                 if seen && best.is_none_or(|(r, _)| reach > r) {
                     best = Some((reach, c));
                 }
@@ -412,9 +408,8 @@ mod tests {
                 for cam in &world.rig.cameras {
                     for p in seen.corners {
                         // Not over the glass, even the bumped glass.
-                        let beyond = cam.center + (p - cam.center) * 20.0;
                         assert!(
-                            !bumped.ray_hits_glass(&cam.center, &beyond),
+                            !bumped.glass_behind(&cam.center, &p),
                             "placement {placement}"
                         );
                     }
